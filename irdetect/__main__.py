@@ -1,0 +1,5 @@
+import sys
+
+from irdetect.cli import main
+
+sys.exit(main())

@@ -1,0 +1,160 @@
+"""Configuration: one frozen dataclass per stage, TOML in, resolved JSON out.
+
+Each stage's dataclass mirrors the keyword parameters of the stage's public function
+(``tests/test_config.py`` checks that they match). A TOML file holds one table per
+stage, e.g.::
+
+    [combine]
+    length = 12
+
+    [detect]
+    k = 4.0
+
+Unknown tables or keys are an error. The resolved configuration (every value, defaults
+included) is stored as JSON in the ``config`` attribute of every results file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import tomllib
+import typing
+from dataclasses import dataclass, field
+
+from irdetect.errors import InputError
+
+
+# --- detection front end (wan2008; issue 3) -------------------------------------------
+
+@dataclass(frozen=True)
+class SuppressConfig:
+    """Clutter suppression (``irdetect.suppress.suppress``)."""
+
+    method: str = "tophat"
+    size: int = 5
+
+
+@dataclass(frozen=True)
+class CombineConfig:
+    """Combined frames (``irdetect.combine.combine``)."""
+
+    length: int = 12
+    step: int = 12
+    projection: str = "max"
+
+
+@dataclass(frozen=True)
+class DetectConfig:
+    """Directional threshold detection (``irdetect.detect.detect``)."""
+
+    window: int = 5
+    k: float = 4.0
+
+
+@dataclass(frozen=True)
+class FuseConfig:
+    """Groups and probability-weighted fusion (``irdetect.fuse.fuse``)."""
+
+    radius: float = 2.0
+
+
+@dataclass(frozen=True)
+class CorrelateConfig:
+    """Bidirectional 3-frame correlation (``irdetect.correlate.correlate``)."""
+
+    max_speed: float = 1.5
+
+
+# --- track initiation (zhang2010, liang2015; issues 4, 5) -----------------------------
+
+@dataclass(frozen=True)
+class InitiateConfig:
+    """Track initiation on the confirmed detections (``irdetect.initiate``)."""
+
+    method: str = "hough-sc"
+
+
+# --- frame-by-frame tracker (cheng; issue 6) -------------------------------------------
+
+@dataclass(frozen=True)
+class TrackConfig:
+    """Frame-by-frame FCM + adaptive PMHT tracker (``irdetect.track``)."""
+
+
+# --------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class ProcessConfig:
+    """Everything ``irdetect process`` needs, one field per stage."""
+
+    suppress: SuppressConfig = field(default_factory=SuppressConfig)
+    combine: CombineConfig = field(default_factory=CombineConfig)
+    detect: DetectConfig = field(default_factory=DetectConfig)
+    fuse: FuseConfig = field(default_factory=FuseConfig)
+    correlate: CorrelateConfig = field(default_factory=CorrelateConfig)
+    initiate: InitiateConfig = field(default_factory=InitiateConfig)
+    track: TrackConfig = field(default_factory=TrackConfig)
+
+
+def from_dict(cls, data: dict, *, where: str = "config", path=None):
+    """Build dataclass ``cls`` from a nested dict, rejecting unknown keys.
+
+    Nested dataclass fields take nested dicts. Values are checked against the field's
+    type (int, float, str, bool) so a typo in a TOML file fails early with its name.
+    """
+    if not isinstance(data, dict):
+        raise InputError(f"{where} must be a table, got {type(data).__name__}", path)
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise InputError(f"unknown config key {where}.{unknown[0]} "
+                         f"(known: {', '.join(sorted(names)) or 'none'})", path)
+    kwargs = {}
+    for name, value in data.items():
+        kind = hints[name]
+        if dataclasses.is_dataclass(kind):
+            kwargs[name] = from_dict(kind, value, where=f"{where}.{name}", path=path)
+        else:
+            kwargs[name] = _check_value(kind, value, f"{where}.{name}", path)
+    return cls(**kwargs)
+
+
+def _check_value(kind, value, where, path):
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if kind in (int, float, str, bool) and not (isinstance(value, kind)
+                                                and not (kind is int and isinstance(value, bool))):
+        raise InputError(f"{where} must be {kind.__name__}, got {value!r}", path)
+    if typing.get_origin(kind) is tuple:
+        return tuple(value)
+    return value
+
+
+def load_config(path: str | os.PathLike | None, cls=ProcessConfig, overrides: dict | None = None):
+    """Read a TOML config file into ``cls``; ``None`` gives the defaults.
+
+    ``overrides`` is a nested dict applied on top of the file (command-line options).
+    """
+    data: dict = {}
+    if path is not None:
+        try:
+            with open(path, "rb") as fh:
+                data = tomllib.load(fh)
+        except FileNotFoundError:
+            raise InputError("config file not found", path) from None
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise InputError(f"not a valid TOML file ({exc})", path) from None
+    for key, value in (overrides or {}).items():
+        if isinstance(value, dict):
+            data.setdefault(key, {}).update(value)
+        else:
+            data[key] = value
+    return from_dict(cls, data, path=path)
+
+
+def to_json(config) -> str:
+    """The resolved configuration as a JSON string (stored in results files)."""
+    return json.dumps(dataclasses.asdict(config), sort_keys=True)

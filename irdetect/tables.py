@@ -1,0 +1,106 @@
+"""Record layouts of every table irdetect reads or writes, defined once.
+
+Tables are numpy structured arrays; h5py stores them as compound datasets and
+``pandas.DataFrame(arr)`` reads them. An empty table keeps its dtype (``empty(name)``).
+Coordinates are pixels for image sequences (x = column, y = row) and metres for scans.
+The names required by ``shared/design/formats.md`` are the first fields of each dtype;
+everything after them is irdetect's own and documented in ``docs/format.md``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Ground truth of an image sequence: one row per target per frame.
+TRUTH = np.dtype([
+    ("frame", "<i8"), ("target", "<i8"), ("x", "<f8"), ("y", "<f8"), ("amplitude", "<f8"),
+])
+
+#: Confirmed point detections, one row per confirmed fused point per combined frame.
+DETECTION = np.dtype([
+    ("x", "<f8"), ("y", "<f8"), ("frame_start", "<i8"), ("frame_end", "<i8"),
+    ("combined_frame", "<i8"), ("intensity", "<f8"), ("score", "<f8"),
+    ("vx", "<f8"), ("vy", "<f8"), ("n_members", "<i4"),
+])
+
+#: Every fused point before correlation; ``confirmed`` marks those kept.
+CANDIDATE = np.dtype([
+    ("x", "<f8"), ("y", "<f8"), ("frame_start", "<i8"), ("frame_end", "<i8"),
+    ("combined_frame", "<i8"), ("intensity", "<f8"), ("score", "<f8"),
+    ("n_members", "<i4"), ("direction", "<i1"), ("confirmed", "?"),
+])
+
+#: 3-point segments over combined frames k, k+1, k+2 with velocity in px/frame.
+SEGMENT = np.dtype([
+    ("segment_id", "<i8"), ("combined_frame", "<i8"),
+    ("x1", "<f8"), ("y1", "<f8"), ("x2", "<f8"), ("y2", "<f8"), ("x3", "<f8"), ("y3", "<f8"),
+    ("vx", "<f8"), ("vy", "<f8"), ("score", "<f8"),
+])
+
+#: Initiated tracks of an image sequence (velocities in px/frame).
+TRACK = np.dtype([
+    ("track_id", "<i8"), ("rho", "<f8"), ("theta", "<f8"), ("vx", "<f8"), ("vy", "<f8"),
+    ("frame_start", "<i8"), ("frame_end", "<i8"), ("n_points", "<i8"), ("score", "<f8"),
+    ("x0", "<f8"), ("y0", "<f8"),
+])
+
+#: Radar-style measurements, one row per measurement; range/azimuth NaN when not polar.
+SCAN = np.dtype([
+    ("scan", "<i8"), ("time", "<f8"), ("x", "<f8"), ("y", "<f8"),
+    ("range", "<f8"), ("azimuth", "<f8"),
+])
+
+#: Ground truth of a scans file.
+SCAN_TRUTH = np.dtype([("scan", "<i8"), ("target", "<i8"), ("x", "<f8"), ("y", "<f8")])
+
+#: Initiated tracks on scans (units of the scans, velocities per second).
+SCAN_TRACK = np.dtype([
+    ("track_id", "<i8"), ("rho", "<f8"), ("theta", "<f8"), ("vx", "<f8"), ("vy", "<f8"),
+    ("scan_start", "<i8"), ("scan_end", "<i8"), ("n_points", "<i8"), ("score", "<f8"),
+    ("x0", "<f8"), ("y0", "<f8"), ("window_start", "<i8"),
+])
+
+#: Frame-by-frame tracker output: one row per track per frame.
+TRACK_POINT = np.dtype([
+    ("frame", "<i8"), ("track_id", "<i8"), ("x", "<f8"), ("y", "<f8"),
+    ("vx", "<f8"), ("vy", "<f8"), ("area", "<f8"), ("grey", "<f8"),
+])
+
+BY_NAME = {
+    "truth": TRUTH, "detections": DETECTION, "candidates": CANDIDATE, "segments": SEGMENT,
+    "tracks": TRACK, "scans": SCAN, "scan_truth": SCAN_TRUTH, "scan_tracks": SCAN_TRACK,
+    "track_points": TRACK_POINT,
+}
+
+
+def empty(dtype: np.dtype | str) -> np.ndarray:
+    """An empty table of the given dtype (or name in ``BY_NAME``), fields kept."""
+    return np.zeros(0, dtype=BY_NAME[dtype] if isinstance(dtype, str) else dtype)
+
+
+def from_columns(dtype: np.dtype, n: int | None = None, **columns) -> np.ndarray:
+    """Build a table from column arrays; missing columns are zero (NaN for floats).
+
+    Parameters
+    ----------
+    dtype : numpy.dtype
+        A structured dtype from this module.
+    n : int, optional
+        Row count when no column is given.
+    **columns : array_like
+        One 1-D array per field, all of the same length.
+    """
+    lengths = {len(np.atleast_1d(v)) for v in columns.values()}
+    if len(lengths) > 1:
+        raise ValueError(f"columns differ in length: {sorted(lengths)}")
+    size = lengths.pop() if lengths else (n or 0)
+    out = np.zeros(size, dtype=dtype)
+    for name in dtype.names:
+        if name in columns:
+            out[name] = columns[name]
+        elif out.dtype[name].kind == "f":
+            out[name] = np.nan
+    unknown = set(columns) - set(dtype.names)
+    if unknown:
+        raise ValueError(f"unknown columns {sorted(unknown)} for this table")
+    return out
