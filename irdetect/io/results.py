@@ -1,0 +1,256 @@
+"""HDF5 files written atomically: results, sequences, truth.
+
+A writer fills a temporary file beside the output and renames it into place only when
+everything succeeded, so a run that fails or is killed leaves no file at the output path;
+an existing output is replaced only with ``force=True``. Tables are numpy structured
+arrays stored as compound datasets (``irdetect.tables``); empty tables keep their fields.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from irdetect import __version__, tables
+from irdetect.errors import InputError
+
+
+def check_output_path(path: str | os.PathLike, force: bool = False) -> Path:
+    """Check that ``path`` can be written: its folder exists, and it is new or ``force``.
+
+    Raises
+    ------
+    InputError
+        The folder is missing or not writable, or the file exists and ``force`` is False.
+    """
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise InputError(f"output folder {str(folder)!r} does not exist", path)
+    if not os.access(folder, os.W_OK):
+        raise InputError(f"output folder {str(folder)!r} is not writable", path)
+    if path.exists() and not force:
+        raise InputError("output exists; use --force to overwrite it", path)
+    if path.is_dir():
+        raise InputError("output path is a folder", path)
+    return path
+
+
+class AtomicH5:
+    """An HDF5 file that appears at ``path`` only when the ``with`` block succeeds.
+
+    Examples
+    --------
+    >>> with AtomicH5("out.h5", force=True) as f:     # doctest: +SKIP
+    ...     f.create_dataset("x", data=[1, 2, 3])
+    """
+
+    def __init__(self, path: str | os.PathLike, *, force: bool = False):
+        self.path = check_output_path(path, force)
+        self._tmp: str | None = None
+        self.file: h5py.File | None = None
+
+    def __enter__(self) -> h5py.File:
+        fd, self._tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp",
+                                         dir=self.path.parent)
+        os.close(fd)
+        self.file = h5py.File(self._tmp, "w")
+        return self.file
+
+    def __exit__(self, exc_type, exc, tb):
+        try:
+            self.file.close()
+            if exc_type is None:
+                os.replace(self._tmp, self.path)
+        finally:
+            if os.path.exists(self._tmp):
+                os.unlink(self._tmp)
+        return False
+
+
+class ResultsWriter(AtomicH5):
+    """Write a results file (``docs/format.md``) atomically, streaming tables as they grow.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The output file.
+    force : bool
+        Replace an existing file.
+    attrs : dict, optional
+        Root attributes; ``irdetect_version`` is always added.
+
+    Examples
+    --------
+    >>> with ResultsWriter("out.h5", attrs={"input": "seq.h5"}) as out:   # doctest: +SKIP
+    ...     out.append("detections", detections_of_window)
+    """
+
+    def __init__(self, path, *, force: bool = False, attrs: dict | None = None):
+        super().__init__(path, force=force)
+        self.attrs = {"irdetect_version": __version__, **(attrs or {})}
+
+    def __enter__(self):
+        super().__enter__()
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None:
+            for key, value in self.attrs.items():
+                self.file.attrs[key] = value
+        return super().__exit__(exc_type, exc, tb)
+
+    def write(self, name: str, table: np.ndarray) -> None:
+        """Store a whole table (structured array) as dataset ``/name``."""
+        self.file.create_dataset(name, data=table, maxshape=(None,),
+                                 chunks=(max(1, min(len(table), 4096)),) if len(table) else (256,))
+
+    def append(self, name: str, rows: np.ndarray) -> None:
+        """Append rows to table ``/name``, creating it (possibly empty) on first use."""
+        if name not in self.file:
+            self.file.create_dataset(name, shape=(0,), dtype=rows.dtype, maxshape=(None,),
+                                     chunks=(4096,))
+        dset = self.file[name]
+        if len(rows):
+            n = dset.shape[0]
+            dset.resize((n + len(rows),))
+            dset[n:] = rows
+
+
+@dataclass
+class Results:
+    """A results file read back: its tables and root attributes."""
+
+    path: str
+    tables: dict = field(default_factory=dict)
+    attrs: dict = field(default_factory=dict)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.tables[name]
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.tables
+
+    @property
+    def config(self) -> dict:
+        """The resolved configuration the results were made with."""
+        return json.loads(self.attrs.get("config", "{}"))
+
+
+def read_results(path: str | os.PathLike) -> Results:
+    """Read every table and root attribute of a results file.
+
+    Raises
+    ------
+    InputError
+        Missing or unreadable file.
+    """
+    try:
+        with h5py.File(path, "r") as f:
+            found = {}
+            for name, obj in f.items():
+                if isinstance(obj, h5py.Dataset) and obj.dtype.names is not None:
+                    found[name] = obj[()]
+            attrs = {k: _plain(v) for k, v in f.attrs.items()}
+    except FileNotFoundError:
+        raise InputError("file not found", path) from None
+    except OSError as exc:
+        raise InputError(f"not a readable HDF5 file ({str(exc).splitlines()[0][:120]})",
+                         path) from None
+    return Results(os.fspath(path), found, attrs)
+
+
+def _plain(value):
+    if isinstance(value, bytes):
+        return value.decode()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def write_sequence(path: str | os.PathLike, frames, *, truth: np.ndarray | None = None,
+                   attrs: dict | None = None, force: bool = False,
+                   chunk_frames: int = 64) -> Path:
+    """Write an image sequence to the HDF5 contract (``/frames``, optional ``/truth``).
+
+    Parameters
+    ----------
+    frames : ndarray of shape (T, H, W), or an iterable of such blocks
+        The frames; an iterable of blocks streams a long sequence without holding it.
+    truth : structured ndarray, optional
+        ``irdetect.tables.TRUTH`` rows (x = column, y = row, pixels).
+    attrs : dict, optional
+        Root attributes (e.g. ``frame_rate``).
+    chunk_frames : int
+        HDF5 chunk length along time; frames are chunked whole so windows read fast.
+    """
+    with AtomicH5(path, force=force) as f:
+        blocks = [frames] if isinstance(frames, np.ndarray) else frames
+        dset = None
+        for block in blocks:
+            block = np.asarray(block)
+            if dset is None:
+                dset = f.create_dataset("frames", shape=(0,) + block.shape[1:], dtype=block.dtype,
+                                        maxshape=(None,) + block.shape[1:],
+                                        chunks=(min(chunk_frames, max(1, len(block))),)
+                                        + block.shape[1:])
+            n = dset.shape[0]
+            dset.resize((n + len(block),) + block.shape[1:])
+            dset[n:] = block
+        if dset is None:
+            raise InputError("no frames to write", path)
+        if truth is not None:
+            f.create_dataset("truth", data=np.asarray(truth, dtype=tables.TRUTH))
+        f.attrs["irdetect_version"] = __version__
+        for key, value in (attrs or {}).items():
+            f.attrs[key] = value
+    return Path(path)
+
+
+def read_point_annotations(path: str | os.PathLike, n_frames: int | None = None) -> np.ndarray:
+    """Read a point annotation file: line i is ``x y`` of the target in frame i.
+
+    This is the format of ``shared/data/real/*/truth.txt`` (x = column, y = row, 0-based).
+    Blank lines and ``#`` comments are skipped; extra columns are ignored.
+
+    Returns
+    -------
+    structured ndarray
+        ``irdetect.tables.TRUTH`` rows with target 0 and amplitude NaN.
+
+    Raises
+    ------
+    InputError
+        Unreadable file, a line without two numbers, or a line count other than ``n_frames``.
+    """
+    rows = []
+    try:
+        with open(path, encoding="utf-8") as fh:
+            for number, line in enumerate(fh, 1):
+                text = line.split("#", 1)[0].strip()
+                if not text:
+                    continue
+                parts = text.replace(",", " ").split()
+                try:
+                    x, y = float(parts[0]), float(parts[1])
+                except (IndexError, ValueError):
+                    raise InputError(f"line {number} is not 'x y': {line.strip()!r}",
+                                     path) from None
+                if not (np.isfinite(x) and np.isfinite(y)):
+                    raise InputError(f"line {number} holds NaN or inf", path)
+                rows.append((x, y))
+    except FileNotFoundError:
+        raise InputError("annotation file not found", path) from None
+    except UnicodeDecodeError:
+        raise InputError("annotation file is not text", path) from None
+    if n_frames is not None and len(rows) != n_frames:
+        raise InputError(f"{len(rows)} annotation lines for {n_frames} frames", path)
+    xy = np.array(rows, dtype=float).reshape(-1, 2)
+    return tables.from_columns(tables.TRUTH, frame=np.arange(len(rows)),
+                               target=np.zeros(len(rows), int), x=xy[:, 0], y=xy[:, 1])

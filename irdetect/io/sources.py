@@ -1,0 +1,369 @@
+"""Sequence readers behind one interface, read lazily so long sequences stream.
+
+``open_sequence(path)`` picks the reader from the path: an HDF5 file, a folder of images
+(PNG / TIFF / BMP, 8 or 16 bit, natural sort), a video file (OpenCV) or a ``.npy`` file
+(memory-mapped). Every reader is a :class:`FrameSource`: frames of shape (H, W), sliced
+as ``src[a:b]`` -> ndarray of shape (b - a, H, W) in the file's dtype.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import cv2
+import h5py
+import numpy as np
+
+from irdetect import tables
+from irdetect.errors import InputError
+
+IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg", ".pgm"}
+VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".mpg", ".mpeg", ".wmv", ".m4v"}
+HDF5_SUFFIXES = {".h5", ".hdf5", ".hdf", ".he5"}
+SUPPORTED_DTYPES = (np.uint8, np.uint16, np.int16, np.int32, np.float32, np.float64)
+#: frames per read when checking a whole sequence for NaN / inf
+_CHECK_BLOCK = 256
+
+
+class FrameSource:
+    """A sequence of (H, W) frames read on demand.
+
+    Attributes
+    ----------
+    path : str
+        The input path.
+    shape : tuple of int
+        (T, H, W).
+    dtype : numpy.dtype
+        The stored pixel type.
+    frame_rate : float or None
+        Frames per second, when the file says.
+    truth : structured ndarray or None
+        Ground truth (``irdetect.tables.TRUTH``) stored with the sequence, if any.
+    """
+
+    path: str
+    shape: tuple[int, int, int]
+    dtype: np.dtype
+    frame_rate: float | None = None
+    truth: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, index):
+        if isinstance(index, (int, np.integer)):
+            i = int(index) + (len(self) if index < 0 else 0)
+            if not 0 <= i < len(self):
+                raise IndexError(f"frame {index} out of range for {len(self)} frames")
+            return self._read(i, i + 1)[0]
+        if isinstance(index, slice):
+            start, stop, step = index.indices(len(self))
+            if step != 1:
+                return self._read(start, stop)[::step]
+            return self._read(start, max(start, stop))
+        raise TypeError("index a FrameSource with an int or a slice")
+
+    def _read(self, start: int, stop: int) -> np.ndarray:
+        raise NotImplementedError
+
+    def windows(self, length: int, step: int | None = None):
+        """Yield ``(start, frames)`` over consecutive windows of ``length`` frames.
+
+        The last window may be shorter. Only one window is held in memory at a time.
+        """
+        step = length if step is None else step
+        if length < 1 or step < 1:
+            raise ValueError(f"window length and step must be >= 1, got {length}, {step}")
+        for start in range(0, len(self), step):
+            yield start, self[start:start + length]
+
+    def check_values(self) -> None:
+        """Raise InputError when a floating-point sequence holds NaN or inf."""
+        if self.dtype.kind != "f":
+            return
+        for start, block in self.windows(_CHECK_BLOCK):
+            bad = ~np.isfinite(block)
+            if bad.any():
+                frame = start + int(np.argmax(bad.reshape(len(block), -1).any(axis=1)))
+                raise InputError(f"frame {frame} holds NaN or inf values", self.path)
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.path!r}, shape={self.shape}, dtype={self.dtype})"
+
+
+def _check_stack(path, shape, dtype) -> None:
+    if len(shape) != 3:
+        raise InputError(f"frames must be 3-D (T, H, W), got {len(shape)}-D shape {shape}", path)
+    if shape[0] == 0:
+        raise InputError("the sequence has 0 frames", path)
+    if shape[1] < 1 or shape[2] < 1:
+        raise InputError(f"frames of size {shape[1]}x{shape[2]} are empty", path)
+    if np.dtype(dtype) not in [np.dtype(d) for d in SUPPORTED_DTYPES]:
+        raise InputError(f"unsupported pixel type {np.dtype(dtype)} "
+                         "(use uint8, uint16, int16, int32, float32 or float64)", path)
+
+
+class HDF5Source(FrameSource):
+    """Frames from a 3-D dataset of an HDF5 file (``/frames`` by default).
+
+    With ``dataset=None`` the reader takes ``/frames``, else the file's only 3-D dataset.
+    ``/truth`` and the root attribute ``frame_rate`` are read when present.
+    """
+
+    def __init__(self, path, dataset: str | None = None):
+        self.path = os.fspath(path)
+        try:
+            self._file = h5py.File(self.path, "r")
+        except FileNotFoundError:
+            raise InputError("file not found", path) from None
+        except OSError as exc:
+            raise InputError(f"not a readable HDF5 file ({_short(exc)})", path) from None
+        try:
+            self._dset = self._find_dataset(dataset)
+            _check_stack(self.path, self._dset.shape, self._dset.dtype)
+            self.shape = tuple(int(n) for n in self._dset.shape)
+            self.dtype = np.dtype(self._dset.dtype)
+            rate = self._file.attrs.get("frame_rate")
+            self.frame_rate = None if rate is None else float(rate)
+            self.truth = _read_truth(self._file, self.path)
+            self._dset[0, :1, :1]  # a truncated file fails here, not mid-run
+        except InputError:
+            self._file.close()
+            raise
+        except (OSError, KeyError, ValueError) as exc:
+            self._file.close()
+            raise InputError(f"corrupt or truncated HDF5 file ({_short(exc)})", path) from None
+
+    def _find_dataset(self, name):
+        if name is not None:
+            obj = self._file.get(name)
+            if not isinstance(obj, h5py.Dataset):
+                raise InputError(f"no dataset {name!r} in the file", self.path)
+            return obj
+        if isinstance(self._file.get("frames"), h5py.Dataset):
+            return self._file["frames"]
+        found = []
+        self._file.visititems(lambda n, o: found.append(n)
+                              if isinstance(o, h5py.Dataset) and o.ndim == 3 else None)
+        if not found:
+            raise InputError("no 3-D dataset (T, H, W) in the file; expected /frames", self.path)
+        if len(found) > 1:
+            raise InputError(f"several 3-D datasets ({', '.join('/' + f for f in found)}); "
+                             "choose one with --dataset", self.path)
+        return self._file[found[0]]
+
+    def _read(self, start, stop):
+        try:
+            return self._dset[start:stop]
+        except (OSError, ValueError) as exc:
+            raise InputError(f"corrupt or truncated HDF5 file ({_short(exc)})", self.path) from None
+
+    def close(self):
+        if self._file.id.valid:
+            self._file.close()
+
+
+def _read_truth(file: h5py.File, path) -> np.ndarray | None:
+    obj = file.get("truth")
+    if not isinstance(obj, h5py.Dataset) or obj.dtype.names is None:
+        return None
+    raw = obj[()]
+    missing = {"frame", "x", "y"} - set(raw.dtype.names)
+    if missing:
+        raise InputError(f"/truth lacks the fields {sorted(missing)}", path)
+    out = tables.from_columns(tables.TRUTH, **{k: raw[k] for k in raw.dtype.names
+                                               if k in tables.TRUTH.names})
+    if "target" not in raw.dtype.names:
+        out["target"] = 0
+    return out
+
+
+def natural_key(name: str):
+    """Sort key that orders ``frame2`` before ``frame10``."""
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
+
+
+class ImageFolderSource(FrameSource):
+    """Frames from a folder of images, in natural sort order of their names.
+
+    8- and 16-bit greyscale images are read as stored; colour images are converted to
+    grey. Every image must have the size and type of the first one.
+    """
+
+    def __init__(self, path):
+        self.path = os.fspath(path)
+        folder = Path(path)
+        self._files = sorted((p for p in folder.iterdir()
+                              if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()),
+                             key=lambda p: natural_key(p.name))
+        if not self._files:
+            raise InputError("the folder holds no images (PNG, TIFF, BMP, JPEG, PGM)", path)
+        first = self._load(self._files[0])
+        _check_stack(self.path, (len(self._files),) + first.shape, first.dtype)
+        self.shape = (len(self._files),) + first.shape
+        self.dtype = first.dtype
+
+    def _load(self, file: Path) -> np.ndarray:
+        image = cv2.imread(str(file), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
+        if image is None:
+            raise InputError("cannot read this image", file)
+        if image.ndim == 3:
+            code = cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY
+            image = cv2.cvtColor(image, code)
+        return image
+
+    def _read(self, start, stop):
+        out = np.empty((stop - start,) + self.shape[1:], dtype=self.dtype)
+        for i, file in enumerate(self._files[start:stop]):
+            image = self._load(file)
+            if image.shape != self.shape[1:] or image.dtype != self.dtype:
+                raise InputError(f"frames of mixed sizes or types: {file.name} is "
+                                 f"{image.shape[1]}x{image.shape[0]} {image.dtype}, the first is "
+                                 f"{self.shape[2]}x{self.shape[1]} {self.dtype}", self.path)
+            out[i] = image
+        return out
+
+    def check_values(self) -> None:
+        """Read every image once: mixed sizes or unreadable files fail here, not mid-run."""
+        for _ in self.windows(_CHECK_BLOCK):
+            pass
+
+
+class VideoSource(FrameSource):
+    """Frames of a video file decoded by OpenCV, converted to 8-bit grey.
+
+    Decoding is sequential; reading frames in order (as ``windows`` does) costs one pass.
+    """
+
+    def __init__(self, path):
+        self.path = os.fspath(path)
+        if not os.path.exists(self.path):
+            raise InputError("file not found", path)
+        cap = cv2.VideoCapture(self.path)
+        if not cap.isOpened():
+            raise InputError("not a video OpenCV can decode", path)
+        count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        ok, first = cap.read()
+        cap.release()
+        if not ok:
+            raise InputError("the video has 0 frames", path)
+        if count <= 0:
+            count = self._count_frames()
+        first = _grey(first)
+        self.shape = (count,) + first.shape
+        self.dtype = first.dtype
+        rate = cv2.VideoCapture(self.path).get(cv2.CAP_PROP_FPS)
+        self.frame_rate = float(rate) if rate and rate > 0 else None
+        self._cap = None
+        self._next = 0
+
+    def _count_frames(self):
+        cap, n = cv2.VideoCapture(self.path), 0
+        while cap.grab():
+            n += 1
+        cap.release()
+        return n
+
+    def _read(self, start, stop):
+        if self._cap is None or start != self._next:
+            if self._cap is not None:
+                self._cap.release()
+            self._cap = cv2.VideoCapture(self.path)
+            self._cap.set(cv2.CAP_PROP_POS_FRAMES, start)
+        out = np.empty((stop - start,) + self.shape[1:], dtype=self.dtype)
+        for i in range(stop - start):
+            ok, frame = self._cap.read()
+            if not ok:
+                raise InputError(f"video ends at frame {start + i}, expected {len(self)}",
+                                 self.path)
+            out[i] = _grey(frame)
+        self._next = stop
+        return out
+
+    def close(self):
+        if self._cap is not None:
+            self._cap.release()
+            self._cap = None
+
+
+def _grey(frame):
+    return cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY) if frame.ndim == 3 else frame
+
+
+class NpySource(FrameSource):
+    """Frames of a ``.npy`` file of shape (T, H, W), memory-mapped."""
+
+    def __init__(self, path):
+        self.path = os.fspath(path)
+        try:
+            self._array = np.load(self.path, mmap_mode="r", allow_pickle=False)
+        except FileNotFoundError:
+            raise InputError("file not found", path) from None
+        except (ValueError, OSError) as exc:
+            raise InputError(f"not a readable .npy file ({_short(exc)})", path) from None
+        _check_stack(self.path, self._array.shape, self._array.dtype)
+        self.shape = tuple(int(n) for n in self._array.shape)
+        self.dtype = self._array.dtype
+
+    def _read(self, start, stop):
+        return np.array(self._array[start:stop])
+
+
+def open_sequence(path: str | os.PathLike, dataset: str | None = None) -> FrameSource:
+    """Open an image sequence for lazy reading; the path decides the reader.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        An HDF5 file, a folder of images, a video file or a ``.npy`` file.
+    dataset : str, optional
+        HDF5 only: the dataset path (default ``/frames``, else the only 3-D dataset).
+
+    Returns
+    -------
+    FrameSource
+        Frames of shape (H, W); ``src[a:b]`` is an ndarray of shape (b - a, H, W).
+
+    Raises
+    ------
+    InputError
+        Missing file, unreadable or corrupt file, not 3-D, 0 frames, unsupported dtype.
+
+    Examples
+    --------
+    >>> with open_sequence("seq.h5") as src:            # doctest: +SKIP
+    ...     for start, frames in src.windows(12):
+    ...         print(start, frames.shape)
+    """
+    p = Path(path)
+    if p.is_dir():
+        return ImageFolderSource(p)
+    if not p.exists():
+        raise InputError("file not found", path)
+    suffix = p.suffix.lower()
+    if suffix == ".npy":
+        return NpySource(p)
+    if suffix in VIDEO_SUFFIXES:
+        return VideoSource(p)
+    if suffix in HDF5_SUFFIXES or h5py.is_hdf5(p):
+        return HDF5Source(p, dataset)
+    if suffix in IMAGE_SUFFIXES:
+        raise InputError("a single image is not a sequence; give the folder of frames", path)
+    raise InputError("unknown input type (expected .h5, a folder of images, a video or .npy)",
+                     path)
+
+
+def _short(exc: Exception) -> str:
+    return str(exc).splitlines()[0][:160]
