@@ -128,7 +128,9 @@ def _check_value(kind, value, where, path):
     if kind in (int, float, str, bool) and not (isinstance(value, kind)
                                                 and not (kind is int and isinstance(value, bool))):
         raise InputError(f"{where} must be {kind.__name__}, got {value!r}", path)
-    if typing.get_origin(kind) is tuple:
+    if kind is tuple or typing.get_origin(kind) is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise InputError(f"{where} must be a list, got {value!r}", path)
         return tuple(value)
     return value
 
