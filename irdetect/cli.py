@@ -21,7 +21,6 @@ COMMANDS = [
     ("simulate", "simulate", "write a synthetic IR sequence with ground truth"),
     ("convert", "convert", "convert any readable sequence (HDF5, image folder, video, .npy) to HDF5"),
     ("info", "info", "say what a sequence, scans or results file holds"),
-    ("evaluate", "evaluate", "score a results file against ground truth"),
 ]
 
 
@@ -31,7 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
         "and initiate their tracks.")
     parser.add_argument("--version", action="version", version=f"irdetect {__version__}")
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
+    common.add_argument("-v", "--verbose", action="count", default=0, help="debug log output")
     common.add_argument("-q", "--quiet", action="store_true",
                         help="only errors; no progress bar")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
@@ -48,8 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit code (0 ok, 1 failure, 2 bad input)."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    level = logging.ERROR if args.quiet else (logging.DEBUG if args.verbose > 1
-                                              else logging.INFO if args.verbose else logging.WARNING)
+    level = logging.ERROR if args.quiet else logging.DEBUG if args.verbose else logging.INFO
     logging.basicConfig(level=level, format="irdetect: %(message)s", stream=sys.stderr)
     args.progress = not args.quiet and sys.stderr.isatty()
     try:

@@ -1,0 +1,49 @@
+"""Convert any readable sequence (HDF5, folder of images, video, .npy) to the HDF5 contract.
+
+With --truth, a point annotation file (one 'x y' line per frame, x = column, y = row,
+0-based; the format of shared/data/real/*/truth.txt) is imported as /truth.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+from tqdm import tqdm
+
+from irdetect.errors import InputError
+from irdetect.io import check_output_path, open_sequence, read_point_annotations, write_sequence
+
+log = logging.getLogger(__name__)
+
+
+def add_arguments(p):
+    p.add_argument("input", help="HDF5 file, folder of images, video file or .npy")
+    p.add_argument("-o", "--output", required=True, help="HDF5 file to write")
+    p.add_argument("--truth", help="point annotation file, one 'x y' line per frame")
+    p.add_argument("--dataset", help="HDF5 input: dataset path (default /frames)")
+    p.add_argument("--frame-rate", type=float, help="frames per second to record")
+    p.add_argument("--force", action="store_true", help="overwrite an existing output")
+
+
+def run(args) -> int:
+    check_output_path(args.output, args.force)
+    with open_sequence(args.input, args.dataset) as src:
+        truth = (read_point_annotations(args.truth, len(src)) if args.truth else src.truth)
+        bar = tqdm(total=len(src), unit="frame", disable=not args.progress, desc="convert")
+
+        def blocks():
+            for _, frames in src.windows(64):
+                if frames.dtype.kind == "f" and not np.isfinite(frames).all():
+                    raise InputError("frames hold NaN or inf values", args.input)
+                bar.update(len(frames))
+                yield frames
+
+        rate = args.frame_rate or src.frame_rate
+        attrs = {"source": str(args.input)} | ({"frame_rate": rate} if rate else {})
+        write_sequence(args.output, blocks(), truth=truth, attrs=attrs, force=args.force)
+        bar.close()
+        log.info("wrote %s: %d frames of %dx%d %s%s", args.output, len(src), src.shape[2],
+                    src.shape[1], src.dtype, f", {len(truth)} truth rows" if truth is not None
+                    else "")
+    return 0

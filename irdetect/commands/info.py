@@ -1,0 +1,58 @@
+"""Say what a sequence, scans or results file holds, in a few lines."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import h5py
+
+from irdetect.io import open_sequence, read_results
+
+RESULT_TABLES = ("detections", "candidates", "segments", "tracks", "track_points", "scans")
+
+
+def add_arguments(p):
+    p.add_argument("file", help="sequence (HDF5, image folder, video, .npy), scans or results")
+    p.add_argument("--dataset", help="HDF5 sequence: dataset path (default /frames)")
+
+
+def describe(path, dataset=None) -> list[str]:
+    """Human lines describing ``path``; raises InputError when it cannot be read."""
+    p = Path(path)
+    if p.is_file() and h5py.is_hdf5(p):
+        with h5py.File(p, "r") as f:
+            is_results = dataset is None and any(name in f for name in RESULT_TABLES)
+        if is_results:
+            return _describe_results(path)
+    with open_sequence(path, dataset) as src:
+        t, h, w = src.shape
+        first = src[0]
+        lines = [f"{path}: image sequence ({type(src).__name__[:-6]})",
+                 f"  {t} frames of {w}x{h} px (W x H), {src.dtype}",
+                 f"  frame 0 values {first.min()}..{first.max()}"]
+        if src.frame_rate:
+            lines.append(f"  frame rate {src.frame_rate:g} Hz")
+        if src.truth is not None:
+            targets = len(set(src.truth["target"].tolist()))
+            lines.append(f"  truth: {len(src.truth)} rows, {targets} target(s)")
+    return lines
+
+
+def _describe_results(path) -> list[str]:
+    res = read_results(path)
+    lines = [f"{path}: irdetect results (version {res.attrs.get('irdetect_version', '?')})"]
+    if "input" in res.attrs:
+        lines.append(f"  input {res.attrs['input']}")
+    for name, table in res.tables.items():
+        lines.append(f"  /{name}: {len(table)} rows ({', '.join(table.dtype.names)})")
+    if "combined_length" in res.attrs:
+        lines.append(f"  combined frames of {res.attrs['combined_length']} frames")
+    if "config" in res.attrs:
+        lines.append(f"  config {json.dumps(res.config, sort_keys=True)[:200]}")
+    return lines
+
+
+def run(args) -> int:
+    print("\n".join(describe(args.file, args.dataset)))
+    return 0
