@@ -1,0 +1,109 @@
+"""The foundation's CLI: simulate, convert, info, and every bad input of issue 2."""
+
+import h5py
+import numpy as np
+import pytest
+
+from tests.conftest import real_sequence
+
+
+def test_simulate_then_info(cli):
+    code, _, err = cli("simulate", "s.h5", "--seed", "1", "--frames", "20", "--snr", "5")
+    assert code == 0, err
+    code, out, _ = cli("info", "s.h5")
+    assert code == 0
+    assert "20 frames of 320x240" in out and "5 target(s)" in out
+
+
+def test_version_and_help(cli, capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli("--version")
+    assert exc.value.code == 0
+    assert "irdetect" in capsys.readouterr().out
+
+
+def test_convert_real_easy1(cli, tmp_path):
+    folder = real_sequence("easy1")
+    code, _, err = cli("convert", folder / "frames", "-o", "e.h5", "--truth", folder / "truth.txt")
+    assert code == 0, err
+    with h5py.File(tmp_path / "e.h5") as f:
+        assert f["frames"].shape == (40, 128, 128)
+        assert f["truth"].shape == (40,)
+        assert f["truth"]["x"][0] == pytest.approx(53.98)
+
+
+def _bad_inputs(tmp):
+    """(name, argv) pairs that must each end with exit code 2 and one line."""
+    (tmp / "notes.h5").write_text("not hdf5")
+    with h5py.File(tmp / "good.h5", "w") as f:
+        f["frames"] = np.zeros((4, 8, 8), np.uint8)
+    data = (tmp / "good.h5").read_bytes()
+    (tmp / "trunc.h5").write_bytes(data[: len(data) // 2])
+    with h5py.File(tmp / "no3d.h5", "w") as f:
+        f["x"] = np.zeros((8, 8))
+    with h5py.File(tmp / "two3d.h5", "w") as f:
+        f["a"] = np.zeros((2, 8, 8))
+        f["b"] = np.zeros((2, 8, 8))
+    with h5py.File(tmp / "ndim.h5", "w") as f:
+        f["frames"] = np.zeros((2, 8, 8, 3))
+    with h5py.File(tmp / "zero.h5", "w") as f:
+        f["frames"] = np.zeros((0, 8, 8))
+    with h5py.File(tmp / "bool.h5", "w") as f:
+        f["frames"] = np.zeros((2, 8, 8), bool)
+    with h5py.File(tmp / "complex.h5", "w") as f:
+        f["frames"] = np.zeros((2, 8, 8), np.complex64)
+    nan = np.zeros((3, 8, 8), np.float32)
+    nan[2, 1, 1] = np.nan
+    np.save(tmp / "nan.npy", nan)
+    (tmp / "mixed").mkdir()
+    import cv2
+    cv2.imwrite(str(tmp / "mixed" / "1.png"), np.zeros((8, 8), np.uint8))
+    cv2.imwrite(str(tmp / "mixed" / "2.png"), np.zeros((9, 8), np.uint8))
+    (tmp / "ann.txt").write_text("1 2\n3 4\n")
+    (tmp / "cfg.toml").write_text("[combine]\nlenght = 12\n")
+    return {
+        "missing file": ["info", "nope.h5"],
+        "not hdf5": ["info", "notes.h5"],
+        "truncated hdf5": ["convert", "trunc.h5", "-o", "o1.h5"],
+        "no 3-D dataset": ["info", "no3d.h5"],
+        "several 3-D datasets": ["info", "two3d.h5"],
+        "wrong ndim": ["info", "ndim.h5"],
+        "0 frames": ["info", "zero.h5"],
+        "bool dtype": ["info", "bool.h5"],
+        "complex dtype": ["info", "complex.h5"],
+        "NaN values": ["convert", "nan.npy", "-o", "o2.h5"],
+        "mixed sizes": ["convert", "mixed", "-o", "o3.h5"],
+        "annotation count": ["convert", "good.h5", "-o", "o4.h5", "--truth", "ann.txt"],
+        "unknown config key": ["process", "good.h5", "--config", "cfg.toml", "-o", "o5.h5"],
+        "missing output folder": ["convert", "good.h5", "-o", "nowhere/o6.h5"],
+        "output exists": ["convert", "good.h5", "-o", "good.h5"],
+        "unknown scenario": ["simulate", "o7.h5", "--scenario", "mars"],
+    }
+
+
+def test_every_bad_input_gives_exit_2_one_line_and_no_output(cli, tmp_path):
+    cases = _bad_inputs(tmp_path)
+    before = {p.name: p.stat().st_mtime_ns for p in tmp_path.iterdir()}
+    for name, argv in cases.items():
+        code, out, err = cli(*argv)
+        assert code == 2, f"{name}: exit {code}, {err}"
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and "Traceback" not in err, f"{name}: {err}"
+        assert lines[0].startswith("irdetect "), name
+    after = {p.name: p.stat().st_mtime_ns for p in tmp_path.iterdir()}
+    assert after == before  # nothing written, nothing overwritten, no temp files left
+
+
+def test_messages_name_the_problem_and_the_file(cli, tmp_path):
+    cases = _bad_inputs(tmp_path)
+    expect = {"annotation count": ("2 annotation lines for 4 frames", "ann.txt"),
+              "unknown config key": ("combine.lenght", "cfg.toml"),
+              "0 frames": ("0 frames", "zero.h5"),
+              "mixed sizes": ("mixed sizes", "mixed"),
+              "NaN values": ("NaN", "nan.npy"),
+              "several 3-D datasets": ("--dataset", "two3d.h5"),
+              "missing output folder": ("does not exist", "nowhere"),
+              "truncated hdf5": ("HDF5", "trunc.h5")}
+    for name, (problem, file_name) in expect.items():
+        _, _, err = cli(*cases[name])
+        assert problem in err and file_name in err, f"{name}: {err}"

@@ -1,0 +1,112 @@
+import cv2
+import h5py
+import numpy as np
+import pytest
+
+from irdetect import tables
+from irdetect.errors import InputError
+from irdetect.io import (ResultsWriter, open_sequence, read_point_annotations, read_results,
+                         write_sequence)
+
+
+def _write_folder(folder, frames, ext=".png"):
+    folder.mkdir()
+    for i, frame in enumerate(frames):
+        # unpadded names: natural sort must still put frame 2 before frame 10
+        assert cv2.imwrite(str(folder / f"f{i}{ext}"), frame)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_every_reader_round_trips_the_same_frames(tmp_path, dtype):
+    rng = np.random.default_rng(0)
+    top = np.iinfo(dtype).max
+    frames = rng.integers(0, top, size=(12, 17, 23), dtype=dtype)
+
+    write_sequence(tmp_path / "a.h5", frames)
+    np.save(tmp_path / "a.npy", frames)
+    _write_folder(tmp_path / "png", frames)
+    _write_folder(tmp_path / "tif", frames, ".tif")
+    for path in ["a.h5", "a.npy", "png", "tif"]:
+        with open_sequence(tmp_path / path) as src:
+            assert src.shape == frames.shape and src.dtype == frames.dtype, path
+            np.testing.assert_array_equal(src[:], frames, err_msg=path)
+            np.testing.assert_array_equal(src[5], frames[5])
+            got = np.concatenate([w for _, w in src.windows(5)])
+            np.testing.assert_array_equal(got, frames)
+
+
+def test_video_reader_round_trips_lossless_frames(tmp_path):
+    rng = np.random.default_rng(1)
+    frames = rng.integers(0, 255, size=(9, 32, 48), dtype=np.uint8)
+    path = tmp_path / "v.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), 10, (48, 32), False)
+    if not writer.isOpened():
+        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (48, 32), False)
+        lossless = False
+    else:
+        lossless = True
+    for frame in frames:
+        writer.write(frame)
+    writer.release()
+    with open_sequence(path) as src:
+        assert src.shape == frames.shape and src.dtype == np.uint8
+        assert src.frame_rate == pytest.approx(10)
+        got = src[:]
+        if lossless:
+            np.testing.assert_array_equal(got, frames)
+        else:
+            assert np.abs(got.astype(int) - frames).mean() < 40
+        np.testing.assert_array_equal(src[4:6], got[4:6])
+
+
+def test_hdf5_dataset_choice(tmp_path):
+    path = tmp_path / "two.h5"
+    with h5py.File(path, "w") as f:
+        f["a/x"] = np.zeros((3, 4, 5), np.uint8)
+        f["b"] = np.ones((2, 4, 5), np.float32)
+    with pytest.raises(InputError, match="several 3-D datasets"):
+        open_sequence(path)
+    with open_sequence(path, dataset="b") as src:
+        assert src.shape == (2, 4, 5)
+    only = tmp_path / "one.h5"
+    with h5py.File(only, "w") as f:
+        f["movie"] = np.zeros((3, 4, 5), np.uint16)
+    assert open_sequence(only).shape == (3, 4, 5)
+
+
+def test_results_writer_is_atomic_and_keeps_empty_tables(tmp_path):
+    out = tmp_path / "r.h5"
+    with pytest.raises(RuntimeError):
+        with ResultsWriter(out) as w:
+            w.append("detections", tables.empty("detections"))
+            raise RuntimeError("killed mid-run")
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+    rows = tables.from_columns(tables.DETECTION, x=[1.5, 2.5], y=[3.0, 4.0])
+    with ResultsWriter(out, attrs={"input": "seq.h5"}) as w:
+        w.append("detections", rows[:1])
+        w.append("detections", rows[1:])
+        w.write("tracks", tables.empty("tracks"))
+    res = read_results(out)
+    np.testing.assert_array_equal(res["detections"]["x"], [1.5, 2.5])
+    assert res["tracks"].dtype == tables.TRACK and len(res["tracks"]) == 0
+    assert res.attrs["input"] == "seq.h5" and "irdetect_version" in res.attrs
+
+    with pytest.raises(InputError, match="--force"):
+        ResultsWriter(out)
+    with ResultsWriter(out, force=True) as w:
+        w.write("detections", rows[:1])
+    assert len(read_results(out)["detections"]) == 1
+
+
+def test_point_annotations(tmp_path):
+    path = tmp_path / "t.txt"
+    path.write_text("1 2\n3.5 4.5\n\n# comment\n5 6\n")
+    truth = read_point_annotations(path, 3)
+    np.testing.assert_array_equal(truth["frame"], [0, 1, 2])
+    np.testing.assert_array_equal(truth["x"], [1, 3.5, 5])
+    with pytest.raises(InputError, match="3 annotation lines for 4 frames"):
+        read_point_annotations(path, 4)
+    path.write_text("1 2\nabc\n")
+    with pytest.raises(InputError, match="line 2"):
+        read_point_annotations(path)

@@ -1,0 +1,58 @@
+import numpy as np
+import pytest
+
+from irdetect.errors import InputError
+from irdetect.simulate import load_scenario, simulate
+
+
+def test_wan2008_preset_reproduces_the_papers_scene():
+    s = load_scenario("wan2008")
+    assert (s.height, s.width, s.n_targets) == (240, 320, 5) and s.n_frames >= 48
+    frames, truth = simulate("wan2008", rng=0)
+    assert frames.shape == (48, 240, 320)
+    headings = set()
+    for j in range(5):
+        rows = truth[truth["target"] == j]
+        dx, dy = np.diff(rows["x"]), np.diff(rows["y"])
+        np.testing.assert_allclose(np.hypot(dx, dy), 1.0)  # 1 px/frame
+        headings.add(round(float(np.degrees(np.arctan2(dy[0], dx[0]))) % 360))
+    assert len(headings) == 5  # all in different directions
+
+
+@pytest.mark.parametrize("snr", [3.0, 6.0])
+def test_targets_are_where_truth_says_at_the_snr_asked(snr):
+    sigma = 5.0
+    frames, truth = simulate("wan2008", rng=1, snr=snr, noise_sigma=sigma, dtype="float32",
+                             n_frames=60, background=100.0)
+    # noise level: away from the targets the frames are N(background, sigma)
+    assert frames[:, :20, :20].std() == pytest.approx(sigma, rel=0.05)
+    assert frames[:, :20, :20].mean() == pytest.approx(100.0, abs=0.2)
+    # peak amplitude: the background-subtracted value at the truth position, averaged over
+    # frames (interpolating the Gaussian PSF back to its sub-pixel centre)
+    t, x, y = truth["frame"], truth["x"], truth["y"]
+    r, c = np.rint(y).astype(int), np.rint(x).astype(int)
+    sampled = frames[t, r, c] - 100.0
+    psf = np.exp(-((c - x) ** 2 + (r - y) ** 2) / (2 * 0.6 ** 2))
+    assert np.mean(sampled / psf) == pytest.approx(snr * sigma, rel=0.08)
+    assert np.all(truth["amplitude"] == snr * sigma)
+
+
+def test_uint16_and_clutter_and_seed():
+    a, ta = simulate("clutter", rng=5, dtype="uint16", background=1000.0)
+    b, tb = simulate("clutter", rng=5, dtype="uint16", background=1000.0)
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(ta, tb)
+    assert a.dtype == np.uint16
+    c, _ = simulate("clutter", rng=6, dtype="uint16", background=1000.0)
+    assert not np.array_equal(a, c)
+    # structured clutter is far stronger than the noise
+    assert a.astype(float).std() > 4 * 4.0
+
+
+def test_bad_scenarios_are_refused():
+    with pytest.raises(InputError, match="unknown scenario"):
+        load_scenario("nope")
+    with pytest.raises(InputError, match="unknown config key scenario.colour"):
+        load_scenario("wan2008", colour=1)
+    with pytest.raises(InputError, match="dtype"):
+        load_scenario("wan2008", dtype="bool")
