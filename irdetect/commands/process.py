@@ -33,9 +33,9 @@ def default_output(input_path) -> Path:
 
 
 def run(args) -> int:
+    config = load_config(args.config)
     from irdetect.pipeline import process_file
 
-    config = load_config(args.config)
     output = args.output or default_output(args.input)
     summary = process_file(args.input, output, config, dataset=args.dataset, force=args.force,
                            progress=args.progress)
