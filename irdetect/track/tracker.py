@@ -1,0 +1,545 @@
+"""Frame-by-frame multi-target trackers: FCM association + adaptive PMHT, and a CV Kalman + GNN baseline.
+
+Both trackers take, frame after frame, the candidate regions of :mod:`irdetect.track.regions`
+and share one constant-velocity Kalman model and one track management (birth after M-of-N
+confirmation, coasting through misses, death, merging). They differ in association and
+process noise:
+
+* :class:`FCMPMHTTracker` (Cheng et al.): fuzzy c-means memberships of the regions to the
+  predicted tracks over a weighted, normalised feature distance (grey, area, position, and
+  motion direction once a track is 3 frames old), a noise cluster for "no track", the most
+  probable hypothesis per region, a PMHT synthetic measurement per track, the adaptive process
+  noise Q(k) = Q0 + dQ(k) with the paper's sign rule, and merge / split handling that keeps
+  both ids through a merge.
+* :class:`GNNTracker`: Mahalanobis gating and global nearest neighbour assignment
+  (``scipy.optimize.linear_sum_assignment``), fixed Q = Q0, no merge handling.
+
+State is [x, vx, y, vy] (x = column, y = row, pixels; velocities in pixels per frame
+interval). Output rows are :data:`irdetect.tables.TRACK_POINT`; summaries
+:data:`irdetect.tables.TRACK`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from irdetect import tables
+from irdetect.track.fcm import fcm_memberships
+
+_H = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])
+
+
+@dataclass
+class Track:
+    """One track's state between frames (read-only for callers)."""
+
+    track_id: int
+    x: np.ndarray                     # [x, vx, y, vy]
+    P: np.ndarray                     # 4x4 covariance
+    dQ: np.ndarray                    # adaptive part of the process noise
+    grey: float
+    area: float
+    born: int                         # frame of birth
+    confirmed: bool = False
+    hits: int = 1
+    misses: int = 0                   # consecutive misses
+    merged: int = 0                   # consecutive frames inside a shared region
+    last_hit: int = 0
+    pending: list = field(default_factory=list)   # points not yet released
+    sums: np.ndarray = field(default_factory=lambda: np.zeros(11))
+    first_frame: int = -1             # first and last released point
+    last_frame: int = -1
+    dead: bool = False                # ended by association (absorbed or duplicate)
+
+    @property
+    def position(self) -> tuple[float, float]:
+        return float(self.x[0]), float(self.x[2])
+
+
+class _TrackerBase:
+    """Kalman model and track management shared by both trackers."""
+
+    def __init__(self, *, frame_interval: float = 1.0, q0: float = 1e-3, r: float = 0.5,
+                 gate: float = 4.0, confirm_hits: int = 3, confirm_window: int = 5,
+                 max_misses: int = 12, max_tracks: int = 50, init_speed: float = 2.0,
+                 feature_memory: float = 0.9, max_birth_area: float = np.inf):
+        checks = {"frame_interval": frame_interval, "q0": q0, "r": r, "gate": gate,
+                  "init_speed": init_speed}
+        for name, value in checks.items():
+            if not value > 0:
+                raise ValueError(f"{name} must be > 0, got {value!r}")
+        if not 1 <= confirm_hits <= confirm_window:
+            raise ValueError(f"need 1 <= confirm_hits <= confirm_window, got "
+                             f"{confirm_hits!r}, {confirm_window!r}")
+        if max_misses < 0:
+            raise ValueError(f"max_misses must be >= 0, got {max_misses!r}")
+        if max_tracks < 1:
+            raise ValueError(f"max_tracks must be >= 1, got {max_tracks!r}")
+        if not 0 <= feature_memory < 1:
+            raise ValueError(f"feature_memory must be in [0, 1), got {feature_memory!r}")
+        T = float(frame_interval)
+        self.F = np.array([[1, T, 0, 0], [0, 1, 0, 0], [0, 0, 1, T], [0, 0, 0, 1.0]])
+        self.G = np.array([[T * T / 2, 0], [T, 0], [0, T * T / 2], [0, T]])
+        self.Q0 = q0 * self.G @ self.G.T
+        self.R = r * r * np.eye(2)
+        self.T = T
+        self.gate = float(gate)
+        self.confirm_hits, self.confirm_window = int(confirm_hits), int(confirm_window)
+        self.max_misses, self.max_tracks = int(max_misses), int(max_tracks)
+        self.init_speed = float(init_speed)
+        self.feature_memory = float(feature_memory)
+        self.max_birth_area = float(max_birth_area)
+        self.tracks: list[Track] = []
+        self._ended: list[Track] = []
+        self._next_id = 1
+
+    # -- the frame step ------------------------------------------------------------------
+    def step(self, frame: int, regions: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+        """Advance all tracks by one frame.
+
+        Parameters
+        ----------
+        frame : int
+            Index of this frame (increasing by one per call).
+        regions : ndarray of dtype :data:`irdetect.track.regions.REGION`
+            This frame's candidate regions (x = column, y = row, pixels).
+        shape : (H, W)
+            Frame size; a track predicted outside it (beyond ``gate`` pixels) ends.
+
+        Returns
+        -------
+        ndarray of dtype TRACK_POINT
+            Points released by this step: confirmed tracks' estimates of this frame, plus
+            earlier points held back while a track was tentative or coasting (a coasted run is
+            released when the track is seen again and dropped when it dies).
+        """
+        out: list[tuple] = []
+        for t in self.tracks:
+            self._predict(t)
+        h, w = shape
+        margin = self.gate
+        alive = []
+        for t in self.tracks:
+            px, py = t.position
+            if -margin <= px <= w - 1 + margin and -margin <= py <= h - 1 + margin:
+                alive.append(t)
+            else:
+                self._end(t)
+        self.tracks = alive
+        z = np.column_stack([regions["x"], regions["y"]]) if len(regions) else np.zeros((0, 2))
+        assign, shared, blocked = self._associate(regions, z)
+        for i, t in enumerate(list(self.tracks)):
+            rows = assign[i]
+            if i in shared:
+                t.merged += 1
+                t.misses = 0
+                self._record(t, frame, None, out, coasting=False, measured=False)
+            elif len(rows):
+                wts = rows[1]
+                self._update(t, z[rows[0]], wts, regions[rows[0]])
+                t.hits += 1
+                t.misses = 0
+                t.merged = 0
+                t.last_hit = frame
+                self._record(t, frame, regions[rows[0]], out, coasting=False)
+            else:
+                t.misses += 1
+                t.merged = 0
+                self._record(t, frame, None, out, coasting=True)
+        self._manage(frame, out)
+        self._births(frame, regions, z, blocked)
+        return _points(out)
+
+    def finish(self) -> np.ndarray:
+        """End every track; returns the TRACK summary table of all confirmed tracks.
+
+        Points still held back (a trailing coasted run) are dropped.
+        """
+        for t in self.tracks:
+            self._end(t)
+        self.tracks = []
+        done = sorted((t for t in self._ended if t.confirmed), key=lambda t: t.track_id)
+        return _summaries(done)
+
+    # -- Kalman --------------------------------------------------------------------------
+    def _process_noise(self, t: Track) -> np.ndarray:
+        return self.Q0
+
+    def _predict(self, t: Track) -> None:
+        t.x = self.F @ t.x
+        t.P = self.F @ t.P @ self.F.T + self._process_noise(t)
+
+    def _innovation_cov(self, t: Track) -> np.ndarray:
+        return _H @ t.P @ _H.T + self.R
+
+    def _update(self, t: Track, zs: np.ndarray, wts: np.ndarray, regs: np.ndarray) -> None:
+        """PMHT synthetic measurement: weighted mean of the regions, covariance R / sum(w)."""
+        wsum = float(np.sum(wts))
+        zbar = (wts[:, None] * zs).sum(axis=0) / wsum
+        Rbar = self.R / min(wsum, 1.0) if wsum < 1 else self.R / wsum
+        S = _H @ t.P @ _H.T + Rbar
+        e = zbar - _H @ t.x
+        self._adapt(t, e, S)
+        K = t.P @ _H.T @ np.linalg.inv(S)
+        t.x = t.x + K @ e
+        t.P = (np.eye(4) - K @ _H) @ t.P
+        t.P = 0.5 * (t.P + t.P.T)
+        a = self.feature_memory
+        t.grey = a * t.grey + (1 - a) * float(np.average(regs["grey"], weights=wts))
+        t.area = a * t.area + (1 - a) * float(np.average(regs["area"], weights=wts))
+
+    def _adapt(self, t: Track, e: np.ndarray, S: np.ndarray) -> None:
+        """Hook for the adaptive process noise (none in the baseline)."""
+
+    # -- management ----------------------------------------------------------------------
+    def _record(self, t: Track, frame: int, regs, out: list, *, coasting: bool,
+                measured: bool | None = None) -> None:
+        if regs is not None and len(regs):
+            area, grey = float(regs["area"].sum()), float(np.average(regs["grey"],
+                                                                     weights=regs["area"]))
+        else:
+            area, grey = t.area, t.grey
+        measured = (not coasting) if measured is None else measured
+        point = (frame, t.track_id, t.x[0], t.x[2], t.x[1], t.x[3], area, grey, measured)
+        t.pending.append(point)
+        if t.confirmed and not coasting:
+            self._release(t, out)
+
+    def _release(self, t: Track, out: list) -> None:
+        for p in t.pending:
+            s = t.sums
+            f, x, y = p[0], p[2], p[3]
+            s += (1, f, f * f, x, y, x * f, y * f, x * x, y * y, x * y, p[8])
+            out.append(p[:8])
+            if t.first_frame < 0:
+                t.first_frame = f
+            t.last_frame = f
+        t.pending = []
+
+    def _manage(self, frame: int, out: list) -> None:
+        keep = []
+        for t in self.tracks:
+            age = frame - t.born + 1
+            if t.dead:
+                self._end(t)
+                continue
+            if not t.confirmed:
+                if t.hits >= self.confirm_hits:
+                    t.confirmed = True
+                    if t.misses == 0:
+                        self._release(t, out)
+                elif age >= self.confirm_window or t.misses > self.confirm_window - \
+                        self.confirm_hits:
+                    self._end(t)
+                    continue
+            elif t.misses > self.max_misses:
+                self._end(t)
+                continue
+            keep.append(t)
+        self.tracks = keep
+
+    def _end(self, t: Track) -> None:
+        t.pending = []
+        if t.confirmed:
+            self._ended.append(t)
+
+    def _births(self, frame: int, regions: np.ndarray, z: np.ndarray, blocked: np.ndarray) -> None:
+        free = np.flatnonzero(~blocked & (regions["area"] <= self.max_birth_area))
+        room = self.max_tracks - len(self.tracks)
+        if room <= 0 or len(free) == 0:
+            return
+        order = free[np.argsort(-(regions["area"][free] * regions["contrast"][free]),
+                                kind="stable")][:room]
+        s2 = self.init_speed ** 2
+        r2 = self.R[0, 0]
+        for i in order:
+            reg = regions[i]
+            t = Track(self._next_id, np.array([reg["x"], 0.0, reg["y"], 0.0]),
+                      np.diag([r2, s2, r2, s2]), np.zeros((4, 4)), float(reg["grey"]),
+                      float(reg["area"]), born=frame, last_hit=frame)
+            self._next_id += 1
+            t.pending.append((frame, t.track_id, reg["x"], reg["y"], 0.0, 0.0,
+                              float(reg["area"]), float(reg["grey"]), True))
+            self.tracks.append(t)
+
+    def _gate_matrix(self, z: np.ndarray) -> np.ndarray:
+        """Squared Mahalanobis distance of each region to each predicted track, (n_t, n_r)."""
+        if not self.tracks or len(z) == 0:
+            return np.zeros((len(self.tracks), len(z)))
+        pred = np.array([[t.x[0], t.x[2]] for t in self.tracks])
+        Sinv = np.linalg.inv(np.array([self._innovation_cov(t) for t in self.tracks]))
+        e = z[None, :, :] - pred[:, None, :]
+        return np.einsum("tri,tij,trj->tr", e, Sinv, e)
+
+    def _associate(self, regions, z):
+        raise NotImplementedError
+
+
+class GNNTracker(_TrackerBase):
+    """Constant-velocity Kalman filter with global nearest neighbour association.
+
+    The baseline: squared Mahalanobis distance gated at ``gate`` sigmas, one region per track
+    by ``scipy.optimize.linear_sum_assignment``, fixed process noise Q0, no merge handling
+    (of two tracks on one merged blob, one coasts). Parameters as :class:`FCMPMHTTracker`.
+    """
+
+    def _associate(self, regions, z):
+        n_t, n_r = len(self.tracks), len(z)
+        assign = [() for _ in range(n_t)]
+        blocked = np.zeros(n_r, bool)
+        if n_t and n_r:
+            d2 = self._gate_matrix(z)
+            ok = d2 <= self.gate ** 2
+            cost = np.where(ok, d2, 1e12)
+            rows, cols = linear_sum_assignment(cost)
+            for ti, ri in zip(rows, cols):
+                if ok[ti, ri]:
+                    assign[ti] = (np.array([ri]), np.array([1.0]))
+                    blocked[ri] = True
+            confirmed = np.array([t.confirmed for t in self.tracks])
+            blocked |= (ok & confirmed[:, None]).any(axis=0)
+        return assign, set(), blocked
+
+
+class FCMPMHTTracker(_TrackerBase):
+    """FCM association + adaptive-process-noise PMHT tracker (Cheng et al.).
+
+    Parameters
+    ----------
+    frame_interval : float
+        T of the constant-velocity model (1 = velocities in pixels per frame).
+    q0 : float
+        Q0 = q0 * G G^T, q0 the acceleration variance in (pixels / T^2)^2.
+    r : float
+        Measurement noise sigma per axis (pixels).
+    adaptive : bool
+        Use Q(k) = Q0 + dQ(k); False keeps Q0 (for ablation).
+    beta : float
+        Memory of dQ, in [0, 1): dQ(k) = beta dQ(k-1) + (1 - beta) G A(k) G^T.
+    m : float
+        FCM fuzzifier.
+    gate : float
+        Position gate in sigmas of the innovation (Mahalanobis); also the noise-cluster
+        distance: a region farther than ``gate`` (in the weighted feature distance) from every
+        track belongs to no track.
+    w_position, w_grey, w_area, w_direction : float
+        Weights of the squared normalised feature distances in J1 / J2.
+    grey_scale : float
+        Grey difference (grey levels) counted as one unit of distance.
+    area_scale : float
+        Relative area difference counted as one unit.
+    direction_after : int
+        A track with at least this many hits uses J2 (adds the motion direction).
+    min_speed : float
+        Direction is used only for tracks faster than this (pixels / T).
+    confirm_hits, confirm_window : int
+        A tentative track is confirmed after ``confirm_hits`` hits within its first
+        ``confirm_window`` frames, and dropped otherwise.
+    max_misses : int
+        A confirmed track ends after more than this many consecutive misses.
+    max_merged : int
+        Two tracks may share one region (a merge) for at most this many frames; then the
+        younger one ends (a duplicate, not a merge).
+    merge_margin : float
+        A track shares a region when its prediction lies inside the region's bounding box
+        grown by this many pixels.
+    max_tracks : int
+        Cap on live tracks (tentative included): bounds the work in a glint storm.
+    init_speed : float
+        Prior velocity sigma of a new track (pixels / T).
+    feature_memory : float
+        Exponential memory of a track's grey and area features.
+    max_birth_area : float
+        Regions larger than this (pixels) feed existing tracks and merges but start no track.
+
+    Notes
+    -----
+    The paper's objective functions J1, J2 and its dQ formula are lost in the text. We use
+    FCM memberships of the current regions to the *fixed* predicted tracks (no centre update)
+    under D^2 = w_p d_p^2 + w_g d_g^2 + w_s d_s^2 [+ w_a d_a^2], with d_p the Mahalanobis
+    distance to the prediction, d_g = dg / grey_scale, d_s = ds / (area_scale s_track),
+    d_a^2 = 1 - cos(angle between the track velocity and the step to the region), plus a
+    noise cluster at distance ``gate``. dQ is driven by the part of the squared innovation
+    the filter did not expect: a_x = max(e_x^2 - S_xx, 0) 4 / T^4, likewise a_y, and the
+    cross term r sqrt(a_x a_y) with the paper's sign rule r = +1 when e_x e_y > 0 else -1
+    (this keeps dQ positive semi-definite). With no surprise dQ decays by ``beta`` per hit,
+    so Q grows in a manoeuvre and shrinks back when the target is steady. PMHT without EM
+    iterations: one pass, each region goes to its most probable track, and a track's
+    measurement is the membership-weighted mean of its regions with covariance R / sum(w).
+    """
+
+    def __init__(self, *, adaptive: bool = True, beta: float = 0.9, m: float = 2.0,
+                 w_position: float = 1.0, w_grey: float = 1.0, w_area: float = 1.0,
+                 w_direction: float = 1.0, grey_scale: float = 20.0, area_scale: float = 0.5,
+                 direction_after: int = 3, min_speed: float = 0.2, max_merged: int = 150,
+                 merge_margin: float = 1.0, **common):
+        super().__init__(**common)
+        if not 0 <= beta < 1:
+            raise ValueError(f"beta must be in [0, 1), got {beta!r}")
+        if not m > 1:
+            raise ValueError(f"m must be > 1, got {m!r}")
+        for name, value in {"w_position": w_position, "w_grey": w_grey, "w_area": w_area,
+                            "w_direction": w_direction}.items():
+            if not value >= 0:
+                raise ValueError(f"{name} must be >= 0, got {value!r}")
+        if not (grey_scale > 0 and area_scale > 0):
+            raise ValueError(f"grey_scale and area_scale must be > 0, got "
+                             f"{grey_scale!r}, {area_scale!r}")
+        if max_merged < 0 or merge_margin < 0:
+            raise ValueError(f"max_merged and merge_margin must be >= 0, got "
+                             f"{max_merged!r}, {merge_margin!r}")
+        self.adaptive, self.beta, self.m = bool(adaptive), float(beta), float(m)
+        self.w = (float(w_position), float(w_grey), float(w_area), float(w_direction))
+        self.grey_scale, self.area_scale = float(grey_scale), float(area_scale)
+        self.direction_after, self.min_speed = int(direction_after), float(min_speed)
+        self.max_merged, self.merge_margin = int(max_merged), float(merge_margin)
+        self.last_memberships = np.zeros((0, 0))
+
+    def process_noise(self, t: Track) -> np.ndarray:
+        """Q(k) = Q0 + dQ(k) of track ``t`` (4x4, state order [x, vx, y, vy])."""
+        return self._process_noise(t)
+
+    def _process_noise(self, t: Track) -> np.ndarray:
+        return self.Q0 + t.dQ if self.adaptive else self.Q0
+
+    def _adapt(self, t: Track, e: np.ndarray, S: np.ndarray) -> None:
+        if not self.adaptive:
+            return
+        k = 4.0 / self.T ** 4
+        ax = max(e[0] ** 2 - S[0, 0], 0.0) * k
+        ay = max(e[1] ** 2 - S[1, 1], 0.0) * k
+        r = 1.0 if e[0] * e[1] > 0 else -1.0          # the paper's sign rule
+        c = r * np.sqrt(ax * ay)
+        A = np.array([[ax, c], [c, ay]])
+        t.dQ = self.beta * t.dQ + (1 - self.beta) * (self.G @ A @ self.G.T)
+
+    def _distances(self, regions, z, d2):
+        wp, wg, ws, wa = self.w
+        grey = np.array([t.grey for t in self.tracks])
+        area = np.array([t.area for t in self.tracks])
+        D2 = wp * d2
+        D2 = D2 + wg * ((regions["grey"][None, :] - grey[:, None]) / self.grey_scale) ** 2
+        D2 = D2 + ws * ((regions["area"][None, :] - area[:, None])
+                        / (self.area_scale * area[:, None])) ** 2
+        if wa > 0:
+            v = np.array([[t.x[1], t.x[3]] for t in self.tracks])
+            speed = np.hypot(v[:, 0], v[:, 1])
+            use = (np.array([t.hits for t in self.tracks]) >= self.direction_after) \
+                & (speed > self.min_speed)
+            if use.any():
+                prev = np.array([[t.x[0] - t.x[1] * self.T, t.x[2] - t.x[3] * self.T]
+                                 for t in self.tracks])
+                step = z[None, :, :] - prev[:, None, :]
+                norm = np.hypot(step[..., 0], step[..., 1]) * np.maximum(speed, 1e-9)[:, None]
+                dot = np.einsum("tri,ti->tr", step, v)
+                cos = np.where(norm > 0, dot / np.maximum(norm, 1e-12), 1.0)
+                D2 = D2 + wa * np.where(use[:, None], 1.0 - cos, 0.0)
+        return D2
+
+    def _associate(self, regions, z):
+        n_t, n_r = len(self.tracks), len(z)
+        assign = [() for _ in range(n_t)]
+        blocked = np.zeros(n_r, bool)
+        shared: set[int] = set()
+        if n_t == 0 or n_r == 0:
+            self.last_memberships = np.zeros((n_t + 1, n_r))
+            return assign, shared, blocked
+        d2 = self._gate_matrix(z)
+        ok = d2 <= self.gate ** 2
+        D2 = np.where(ok, self._distances(regions, z, d2), np.inf)
+        u = fcm_memberships(np.sqrt(D2), m=self.m,
+                            noise_distance=self.gate * np.sqrt(max(self.w[0], 1e-12)))
+        self.last_memberships = u
+        best = np.argmax(u, axis=0)                     # most probable hypothesis per region
+        confirmed = np.array([t.confirmed for t in self.tracks])
+        # merges: a region whose grown box holds >= 2 confirmed predictions feeds no one
+        pred = np.array([[t.x[0], t.x[2]] for t in self.tracks])
+        mm = self.merge_margin
+        inside = ((pred[:, 0:1] >= regions["bx"][None, :] - mm)
+                  & (pred[:, 0:1] <= (regions["bx"] + regions["bw"] - 1)[None, :] + mm)
+                  & (pred[:, 1:2] >= regions["by"][None, :] - mm)
+                  & (pred[:, 1:2] <= (regions["by"] + regions["bh"] - 1)[None, :] + mm))
+        n_inside = (inside & confirmed[:, None]).sum(axis=0)
+        shared_regions = n_inside >= 2
+        for ri in np.flatnonzero(shared_regions):
+            members = np.flatnonzero(inside[:, ri] & confirmed)
+            for ti in members:
+                shared.add(int(ti))
+        if self.max_merged and shared:
+            shared = self._resolve_duplicates(shared, inside, shared_regions)
+        for ti in range(n_t):
+            if ti in shared:
+                continue
+            rows = np.flatnonzero((best == ti) & ~shared_regions)
+            if len(rows):
+                assign[ti] = (rows, u[ti, rows])
+        blocked |= shared_regions | (best < n_t)
+        blocked |= (ok & confirmed[:, None]).any(axis=0)
+        # a tentative track sitting on a confirmed track's region is absorbed
+        taken = np.zeros(n_r, bool)
+        for ti in range(n_t):
+            if confirmed[ti] and len(assign[ti]):
+                taken[assign[ti][0]] = True
+        taken |= shared_regions
+        absorbed = (~confirmed) & (inside & taken[None, :]).any(axis=1)
+        if absorbed.any():
+            for ti in np.flatnonzero(absorbed):
+                self.tracks[ti].dead = True
+                assign[ti] = ()
+        return assign, shared, blocked
+
+    def _resolve_duplicates(self, shared, inside, shared_regions):
+        """End the younger of tracks that have shared a region for more than max_merged frames."""
+        for ri in np.flatnonzero(shared_regions):
+            members = [ti for ti in np.flatnonzero(inside[:, ri]) if int(ti) in shared]
+            old = [ti for ti in members if self.tracks[ti].merged >= self.max_merged]
+            if len(old) >= 2:
+                keep = min(old, key=lambda ti: self.tracks[ti].track_id)
+                for ti in old:
+                    if ti != keep:
+                        self.tracks[ti].dead = True
+                shared.discard(int(keep))
+        return shared
+
+
+def _points(rows: list[tuple]) -> np.ndarray:
+    out = np.zeros(len(rows), tables.TRACK_POINT)
+    if rows:
+        arr = np.array(rows, dtype=float)
+        for j, name in enumerate(tables.TRACK_POINT.names):
+            out[name] = arr[:, j]
+    return out
+
+
+def _summaries(done: list[Track]) -> np.ndarray:
+    out = tables.from_columns(tables.TRACK, n=len(done))
+    for i, t in enumerate(done):
+        n, sf, sff, sx, sy, sxf, syf, sxx, syy, sxy, meas = t.sums
+        if n == 0:
+            continue
+        fm, xm, ym = sf / n, sx / n, sy / n
+        vf = sff / n - fm * fm
+        vx = (sxf / n - xm * fm) / vf if vf > 0 else 0.0
+        vy = (syf / n - ym * fm) / vf if vf > 0 else 0.0
+        cxx, cyy, cxy = sxx / n - xm * xm, syy / n - ym * ym, sxy / n - xm * ym
+        evals, evecs = np.linalg.eigh(np.array([[cxx, cxy], [cxy, cyy]]))
+        d = evecs[:, 1] if evals[1] > 1e-12 else np.array([1.0, 0.0])
+        normal = np.array([-d[1], d[0]])
+        theta = np.arctan2(normal[1], normal[0])
+        if theta < 0:
+            theta += np.pi
+        if theta >= np.pi:
+            theta -= np.pi
+        rho = xm * np.cos(theta) + ym * np.sin(theta)
+        out[i]["track_id"] = t.track_id
+        out[i]["rho"], out[i]["theta"] = rho, theta
+        out[i]["vx"], out[i]["vy"] = vx, vy
+        out[i]["n_points"] = int(n)
+        out[i]["score"] = meas / n
+        out[i]["frame_start"], out[i]["frame_end"] = t.first_frame, t.last_frame
+        f0 = out[i]["frame_start"]
+        out[i]["x0"], out[i]["y0"] = xm + vx * (f0 - fm), ym + vy * (f0 - fm)
+    return out
