@@ -81,7 +81,44 @@ class InitiateConfig:
 
 @dataclass(frozen=True)
 class TrackConfig:
-    """Frame-by-frame FCM + adaptive PMHT tracker (``irdetect.track``)."""
+    """Frame-by-frame FCM + adaptive PMHT tracker (``irdetect.track.track``)."""
+
+    method: str = "fcm-pmht"
+    sea_sky: bool = False
+    band_above: float = 5.0
+    band_below: float = 40.0
+    suppress_size: int = 15
+    k: float = 4.0
+    min_contrast: float = 8.0
+    min_area: float = 5.0
+    max_area: float = 30.0
+    min_grey: float = 100.0
+    max_grey: float = 180.0
+    max_regions: int = 200
+    frame_interval: float = 1.0
+    q0: float = 0.001
+    r: float = 0.5
+    adaptive: bool = True
+    beta: float = 0.9
+    m: float = 2.0
+    gate: float = 4.0
+    w_position: float = 1.0
+    w_grey: float = 1.0
+    w_area: float = 1.0
+    w_direction: float = 1.0
+    grey_scale: float = 20.0
+    area_scale: float = 0.5
+    direction_after: int = 3
+    min_speed: float = 0.2
+    confirm_hits: int = 3
+    confirm_window: int = 5
+    max_misses: int = 12
+    max_merged: int = 150
+    merge_margin: float = 1.0
+    max_tracks: int = 50
+    init_speed: float = 2.0
+    feature_memory: float = 0.9
+    window: int = 64
 
 
 # --------------------------------------------------------------------------------------

@@ -18,7 +18,8 @@ log = logging.getLogger(__name__)
 METHODS = ("fcm-pmht", "gnn")
 
 
-def track(frames, *, method: str = "fcm-pmht", sea_sky: bool = False, band_above: float = 5.0,
+def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bool = False, *,
+          method: str = "fcm-pmht", sea_sky: bool = False, band_above: float = 5.0,
           band_below: float = 40.0, suppress_size: int = 15, k: float = 4.0,
           min_contrast: float = 8.0, min_area: float = 5.0, max_area: float = 30.0,
           min_grey: float = 100.0, max_grey: float = 180.0, max_regions: int = 200,
@@ -29,8 +30,7 @@ def track(frames, *, method: str = "fcm-pmht", sea_sky: bool = False, band_above
           direction_after: int = 3, min_speed: float = 0.2, confirm_hits: int = 3,
           confirm_window: int = 5, max_misses: int = 12, max_merged: int = 150,
           merge_margin: float = 1.0, max_tracks: int = 50, init_speed: float = 2.0,
-          feature_memory: float = 0.9, window: int = 64, progress: bool = False,
-          sink: Callable[[np.ndarray], None] | None = None) -> tuple[np.ndarray, np.ndarray]:
+          feature_memory: float = 0.9, window: int = 64) -> tuple[np.ndarray, np.ndarray]:
     """Track targets frame by frame through a sequence (Cheng et al.).
 
     Parameters
@@ -38,6 +38,11 @@ def track(frames, *, method: str = "fcm-pmht", sea_sky: bool = False, band_above
     frames : ndarray of shape (T, H, W) or FrameSource
         The sequence; anything with ``len()`` and slicing ``frames[a:b]`` -> (n, H, W).
         It is read ``window`` frames at a time, so memory does not grow with T.
+    sink : callable, optional
+        Called with each chunk of TRACK_POINT rows as it is released (e.g. a results
+        writer's append); the returned points table is then empty.
+    progress : bool
+        Show a tqdm bar over frames.
     method : {"fcm-pmht", "gnn"}
         FCM association + adaptive PMHT (:class:`FCMPMHTTracker`) or the CV Kalman + global
         nearest neighbour baseline (:class:`GNNTracker`).
@@ -56,11 +61,6 @@ def track(frames, *, method: str = "fcm-pmht", sea_sky: bool = False, band_above
         baseline ignores the FCM, adaptive-noise and merge ones).
     window : int
         Frames read at a time.
-    progress : bool
-        Show a tqdm bar over frames.
-    sink : callable, optional
-        Called with each chunk of TRACK_POINT rows as it is released (e.g. a results
-        writer's append); the returned points table is then empty.
 
     Returns
     -------
