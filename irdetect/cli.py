@@ -21,6 +21,7 @@ COMMANDS = [
     ("simulate", "simulate", "write a synthetic IR sequence with ground truth"),
     ("convert", "convert", "convert any readable sequence (HDF5, image folder, video, .npy) to HDF5"),
     ("info", "info", "say what a sequence, scans or results file holds"),
+    ("track", "track", "track small targets frame by frame (FCM + adaptive PMHT)"),
 ]
 
 
