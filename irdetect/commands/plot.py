@@ -1,0 +1,71 @@
+"""Draw one picture of a results file: the tracks over the max projection of the sequence
+(left) and the Hough accumulator of the detections with its candidate cells and the
+subtractive-clustering centres (right) -- the picture of peak clustering and its fix.
+
+The sequence is found from the results' `input` attribute (beside the results file or in
+the current folder) unless given with --sequence. See docs/video.md.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from irdetect.errors import InputError
+
+log = logging.getLogger(__name__)
+
+
+def add_arguments(p):
+    p.add_argument("results", help="results file of `irdetect process`")
+    p.add_argument("-o", "--output", required=True, help="image file (.png, .jpg, .bmp, .tif)")
+    p.add_argument("--sequence", help="the sequence the results were made from (default: "
+                   "the results' input attribute, looked up beside the results file)")
+    p.add_argument("--dataset", help="HDF5 sequence: dataset path (default /frames)")
+    p.add_argument("--raw", action="store_true",
+                   help="max projection of the raw frames (default: of the suppressed frames)")
+    p.add_argument("--truth", nargs="?", const=True, default=None, metavar="FILE",
+                   help="draw ground truth paths in green (the sequence's /truth or FILE)")
+    p.add_argument("--scale", type=float, help="output pixels per source pixel")
+    p.add_argument("--gamma", type=float, default=1.0, help="display gamma (default 1)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing output")
+
+
+def find_sequence(results, given=None):
+    """Path of the sequence: ``given``, else the results' input beside the results file
+    or in the current folder; None when not found."""
+    if given:
+        return given
+    name = results.attrs.get("input")
+    if not name:
+        return None
+    for folder in (Path(results.path).parent, Path(".")):
+        if (folder / name).exists():
+            return folder / name
+    return None
+
+
+def run(args) -> int:
+    from irdetect.commands.video import resolve_truth
+    from irdetect.io import check_output_path, open_sequence, read_results
+    from irdetect.plot import plot_results, write_image
+
+    check_output_path(args.output, args.force)
+    if not Path(args.results).exists():
+        raise InputError("results file not found", args.results)
+    results = read_results(args.results)
+    seq = find_sequence(results, args.sequence)
+    if seq is None:
+        log.warning("sequence %r not found beside %s; drawing over a dark background "
+                    "(give it with --sequence)", results.attrs.get("input"), args.results)
+        if args.truth is not None:
+            raise InputError("--truth needs the sequence; give it with --sequence")
+        image = plot_results(results, None, scale=args.scale, gamma=args.gamma)
+    else:
+        with open_sequence(seq, args.dataset) as src:
+            image = plot_results(results, src, suppressed=not args.raw,
+                                 truth=resolve_truth(args.truth, src), scale=args.scale,
+                                 gamma=args.gamma, progress=args.progress)
+    write_image(args.output, image, force=args.force)
+    log.info("wrote %s (%dx%d px)", args.output, image.shape[1], image.shape[0])
+    return 0
