@@ -73,6 +73,7 @@ def _memberships(d: np.ndarray, m: float) -> np.ndarray:
 
 
 def fcm(data: np.ndarray, c: int, *, m: float = 2.0, tol: float = 1e-6, max_iter: int = 300,
+        init: np.ndarray | None = None,
         rng: np.random.Generator | int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Fuzzy c-means clustering (Bezdek), the paper's steps 1-5.
 
@@ -88,6 +89,8 @@ def fcm(data: np.ndarray, c: int, *, m: float = 2.0, tol: float = 1e-6, max_iter
         Stop when the largest centre move is below ``tol``.
     max_iter : int
         Iteration cap.
+    init : ndarray of shape (c, N), optional
+        Initial memberships (columns are normalised); random when not given.
     rng : numpy.random.Generator or int or None
         Seeds the random initial membership matrix.
 
@@ -109,8 +112,12 @@ def fcm(data: np.ndarray, c: int, *, m: float = 2.0, tol: float = 1e-6, max_iter
         raise ValueError(f"c must be in [1, {len(x)}], got {c!r}")
     if not m > 1:
         raise ValueError(f"m must be > 1, got {m!r}")
-    gen = np.random.default_rng(rng)
-    u = gen.random((c, len(x)))
+    if init is None:
+        u = np.random.default_rng(rng).random((c, len(x)))
+    else:
+        u = np.array(init, dtype=float)
+        if u.shape != (c, len(x)) or np.any(u < 0):
+            raise ValueError(f"init must be non-negative of shape {(c, len(x))}, got {u.shape}")
     u /= u.sum(axis=0)
     centres = _centres(x, u, m)
     for _ in range(max_iter):
