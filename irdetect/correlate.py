@@ -1,0 +1,222 @@
+"""Bidirectional inter-frame correlation over 3 combined frames (Wan & Askar 2008, section 4).
+
+A fused point of combined frame 1 starts a 3-point segment when a fused point of frame 2
+lies within the motion bound l1 of it and a fused point of frame 3 lies within l2 of that
+one (forward, eq. 5); the same search from frame 3 back to frame 1 is the backward
+coefficient (eq. 6). Points on a segment are confirmed; the segment gives the velocity
+v = s / t (eq. 8).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from irdetect.tables import SEGMENT, empty
+
+RESOLVE = ("all", "unique", "cost")
+
+
+@dataclass(frozen=True)
+class Correlation:
+    """The 3-point segments found over combined frames (k, k+1, k+2).
+
+    Attributes
+    ----------
+    segments : ndarray of dtype ``irdetect.tables.SEGMENT``
+        One row per segment; ``segment_id`` and ``combined_frame`` are 0 (the pipeline
+        numbers them), ``vx``, ``vy`` in px/frame, ``score`` the mean of the 3 points'
+        scores (0 when the inputs carry none).
+    index : ndarray of int64 of shape (n_segments, 3)
+        Row of each segment's point in the 1st, 2nd and 3rd input.
+    """
+
+    segments: np.ndarray
+    index: np.ndarray
+
+    def confirmed(self, which: int, n: int) -> np.ndarray:
+        """Bool mask over the ``n`` points of input ``which`` (0, 1, 2): on a segment."""
+        out = np.zeros(n, dtype=bool)
+        out[self.index[:, which]] = True
+        return out
+
+
+def motion_bound(step: int, max_speed: float, tolerance: float) -> float:
+    """l1 = l2 = max_speed x step + tolerance (px, Chebyshev) between combined frames."""
+    return max_speed * step + tolerance
+
+
+def correlate(points1, points2, points3, step: int, *, max_speed: float = 1.5,
+              tolerance: float = 2.0, constant_velocity: bool = True,
+              max_deviation: float = 5.0, resolve: str = "cost",
+              min_score: float = 4.5) -> Correlation:
+    """Find 3-point segments through the fused points of 3 consecutive combined frames.
+
+    Parameters
+    ----------
+    points1, points2, points3 : structured ndarray with fields ``x``, ``y`` (and
+        optionally ``score``), or ndarray of shape (N, 2) of (x, y)
+        Fused points (x = column, y = row, px) of combined frames k, k+1, k+2.
+    step : int
+        Frames between the starts of consecutive combined frames (the time t between
+        them), ``CombineConfig.step``.
+    max_speed : float
+        Largest target speed in px/frame (>= 0); with ``tolerance`` it gives the
+        paper's motion bounds l1 = l2 = max_speed x step + tolerance.
+    tolerance : float
+        Position uncertainty of a fused point in px (>= 0), added to the motion bound.
+    constant_velocity : bool
+        Beyond the paper: also require |p1 - 2 p2 + p3| <= ``max_deviation`` (the middle
+        point within reach of the midpoint of the outer two: straight, uniform motion).
+    max_deviation : float
+        Largest deviation from constant velocity in px (> 0), Euclidean.
+    resolve : {"cost", "unique", "all"}
+        What to do when a point lies on several segments. ``all``: keep every segment
+        (the literal set-valued eqs. 5-7). ``unique``: the paper's reading that
+        correspondence is unique both ways: keep a segment only when its first point
+        starts exactly one forward segment and its last point exactly one backward
+        segment. ``cost`` (beyond the paper): one-to-one, taking segments greedily by
+        increasing deviation |p1 - 2 p2 + p3| so no point serves twice in one role.
+
+    Returns
+    -------
+    Correlation
+        Segments and the row indices of their points.
+
+    Notes
+    -----
+    Eq. 5: R123(x, y) = g[f(x,y,1) sum_{p1,q1 in [-l1,l1]} sum_{p2,q2 in [-l2,l2]}
+    f(x+p1, y+q1, 2) f(x+p1+p2, y+q1+q2, 3)], g(v) = [v > 0] (eq. 7; the print's
+    y+q2 in the second factor is a typo for y+q1). Eq. 6 is the same from frame 3.
+    We evaluate both on the fused points with KD-trees in the Chebyshev metric (all
+    pairs within l1, then all pairs within l2 of the middle points, joined), not on
+    binary images with 4 nested sums: the chains found are exactly those with
+    R123 = 1 at their first point and R321 = 1 at their last. Velocity (eq. 8):
+    v = (p3 - p1) / (2 step) px/frame. The paper's l1, l2 are not given; we derive them
+    from a maximum speed.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> c = correlate(np.array([[10., 10.]]), np.array([[22., 10.]]),
+    ...               np.array([[34., 11.]]), step=12, min_score=0)
+    >>> len(c.segments), float(c.segments["vx"][0])
+    (1, 1.0)
+    """
+    pts = [_as_points(p, f"points{i + 1}") for i, p in enumerate((points1, points2, points3))]
+    if int(step) != step or step < 1:
+        raise ValueError(f"step must be an integer >= 1, got {step!r}")
+    if not np.isfinite(max_speed) or max_speed < 0:
+        raise ValueError(f"max_speed must be a number >= 0, got {max_speed!r}")
+    if not np.isfinite(tolerance) or tolerance < 0:
+        raise ValueError(f"tolerance must be a number >= 0, got {tolerance!r}")
+    if not np.isfinite(max_deviation) or max_deviation <= 0:
+        raise ValueError(f"max_deviation must be a positive number, got {max_deviation!r}")
+    if not np.isfinite(min_score):
+        raise ValueError(f"min_score must be a finite number, got {min_score!r}")
+    if resolve not in RESOLVE:
+        raise ValueError(f"resolve must be one of {RESOLVE}, got {resolve!r}")
+    scores = [_scores(p) for p in (points1, points2, points3)]
+    bound = motion_bound(int(step), float(max_speed), float(tolerance))
+    index = _chains(pts, bound)
+    p1, p2, p3 = (pts[i][index[:, i]] for i in range(3))
+    deviation = np.hypot(*(p1 - 2 * p2 + p3).T) if len(index) else np.zeros(0)
+    if constant_velocity:
+        keep = deviation <= max_deviation
+        index, deviation = index[keep], deviation[keep]
+    if min_score > 0 and len(index):
+        mean_score = sum(scores[i][index[:, i]] for i in range(3)) / 3.0
+        keep = mean_score >= min_score
+        index, deviation = index[keep], deviation[keep]
+    if resolve == "unique":
+        index, deviation = _unique(index, deviation)
+    elif resolve == "cost":
+        index, deviation = _greedy(index, deviation)
+    return Correlation(segments=_segments(pts, scores, index, int(step)), index=index)
+
+
+def _as_points(p, name) -> np.ndarray:
+    a = np.asarray(p)
+    if a.dtype.names is not None:
+        if "x" not in a.dtype.names or "y" not in a.dtype.names:
+            raise ValueError(f"{name} must have fields x and y, got {a.dtype.names}")
+        out = np.column_stack([a["x"], a["y"]]).astype(np.float64)
+    else:
+        if a.size == 0:
+            return np.zeros((0, 2))
+        if a.ndim != 2 or a.shape[1] != 2:
+            raise ValueError(f"{name} must have shape (N, 2), got {a.shape}")
+        out = a.astype(np.float64)
+    if not np.isfinite(out).all():
+        raise ValueError(f"{name} must be finite")
+    return out.reshape(-1, 2)
+
+
+def _scores(p) -> np.ndarray:
+    a = np.asarray(p)
+    if a.dtype.names is not None and "score" in a.dtype.names:
+        return a["score"].astype(np.float64)
+    return np.zeros(len(a))
+
+
+def _pairs(a: np.ndarray, b: np.ndarray, bound: float) -> np.ndarray:
+    if len(a) == 0 or len(b) == 0:
+        return np.zeros((0, 2), np.int64)
+    m = cKDTree(a).sparse_distance_matrix(cKDTree(b), bound, p=np.inf, output_type="ndarray")
+    return np.column_stack([m["i"], m["j"]]).astype(np.int64)
+
+
+def _chains(pts, bound) -> np.ndarray:
+    """All (i1, i2, i3) with |p2 - p1|_inf <= bound and |p3 - p2|_inf <= bound."""
+    a = _pairs(pts[0], pts[1], bound)      # forward: frame 1 -> frame 2
+    b = _pairs(pts[1], pts[2], bound)      # frame 2 -> frame 3
+    if len(a) == 0 or len(b) == 0:
+        return np.zeros((0, 3), np.int64)
+    b = b[np.argsort(b[:, 0], kind="stable")]
+    lo = np.searchsorted(b[:, 0], a[:, 1], side="left")
+    hi = np.searchsorted(b[:, 0], a[:, 1], side="right")
+    n = hi - lo
+    rep = np.repeat(np.arange(len(a)), n)
+    offs = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+    j = lo[rep] + offs
+    return np.column_stack([a[rep, 0], a[rep, 1], b[j, 1]]).astype(np.int64)
+
+
+def _unique(index, deviation):
+    if len(index) == 0:
+        return index, deviation
+    fwd = np.bincount(index[:, 0])[index[:, 0]]   # segments starting at this frame-1 point
+    bwd = np.bincount(index[:, 2])[index[:, 2]]   # segments ending at this frame-3 point
+    keep = (fwd == 1) & (bwd == 1)
+    return index[keep], deviation[keep]
+
+
+def _greedy(index, deviation):
+    if len(index) <= 1:
+        return index, deviation
+    order = np.argsort(deviation, kind="stable")
+    used = [set(), set(), set()]
+    keep = []
+    for s in order:          # a loop over candidate segments (a handful per frame)
+        i1, i2, i3 = index[s]
+        if i1 in used[0] or i2 in used[1] or i3 in used[2]:
+            continue
+        used[0].add(i1), used[1].add(i2), used[2].add(i3)
+        keep.append(s)
+    keep = np.sort(np.array(keep, dtype=np.int64))
+    return index[keep], deviation[keep]
+
+
+def _segments(pts, scores, index, step) -> np.ndarray:
+    if len(index) == 0:
+        return empty(SEGMENT)
+    out = np.zeros(len(index), dtype=SEGMENT)
+    for i, (xf, yf) in enumerate((("x1", "y1"), ("x2", "y2"), ("x3", "y3"))):
+        out[xf] = pts[i][index[:, i], 0]
+        out[yf] = pts[i][index[:, i], 1]
+    out["vx"] = (out["x3"] - out["x1"]) / (2 * step)
+    out["vy"] = (out["y3"] - out["y1"]) / (2 * step)
+    out["score"] = sum(scores[i][index[:, i]] for i in range(3)) / 3.0
+    return out

@@ -1,0 +1,308 @@
+"""The detection pipeline: the only module that knows the order of the stages.
+
+frames -> suppress -> combine (one window at a time) -> detect -> fuse -> correlate over
+the last 3 combined frames -> confirmed detections -> track initiation.
+
+The sequence is streamed: one window of frames (plus the ``history`` frames the temporal
+suppressor needs) is in memory at a time, and only the fused points of the last 3
+combined frames are kept for correlation, so memory is bounded by the window, not the
+sequence length. A combined frame's candidates are final (and written) once the segment
+over it and the next two combined frames has been searched.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from collections import deque
+from dataclasses import asdict
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from irdetect import tables
+from irdetect.combine import combine, frames_needed, window_starts
+from irdetect.config import ProcessConfig, to_json
+from irdetect.correlate import correlate
+from irdetect.detect import detect
+from irdetect.errors import InputError
+from irdetect.fuse import fuse
+from irdetect.suppress import suppress
+
+log = logging.getLogger(__name__)
+
+#: combined frames the correlation needs
+N_CORRELATE = 3
+
+
+def min_frames(config: ProcessConfig | None = None) -> int:
+    """Frames needed for 3 combined frames under ``config`` (36 with the defaults)."""
+    c = (config or ProcessConfig()).combine
+    return frames_needed(N_CORRELATE, length=c.length, step=c.step)
+
+
+def iter_results(frames, config: ProcessConfig | None = None, *,
+                 progress: bool = False) -> Iterator[dict]:
+    """Run the front end over a sequence, yielding results as combined frames complete.
+
+    Parameters
+    ----------
+    frames : ndarray of shape (T, H, W) or irdetect.io.FrameSource
+        Anything with ``len()``, ``.shape`` and slicing ``frames[a:b]`` -> (b - a, H, W).
+    config : ProcessConfig, optional
+        Stage parameters (defaults when None).
+    progress : bool
+        Show a tqdm bar over frames.
+
+    Yields
+    ------
+    dict
+        ``{"candidates": CANDIDATE rows, "detections": DETECTION rows,
+        "segments": SEGMENT rows}`` for one combined frame, in order; the
+        segments are those starting in that combined frame.
+
+    Raises
+    ------
+    ValueError
+        Fewer frames than 3 combined frames need (``min_frames``); the message says how
+        many are needed.
+    """
+    config = config or ProcessConfig()
+    cc = config.combine
+    shape = tuple(frames.shape)
+    if len(shape) != 3:
+        raise ValueError(f"frames must have shape (T, H, W), got {shape}")
+    n_frames = shape[0]
+    need = min_frames(config)
+    if n_frames < need:
+        raise ValueError(f"the sequence has {n_frames} frames; detection needs at least {need} "
+                         f"(3 combined frames of {cc.length} frames, step {cc.step})")
+    starts = window_starts(n_frames, length=cc.length, step=cc.step)
+    sup = asdict(config.suppress)
+    history = sup["history"] if sup["method"] == "temporal" else 0
+    reader = _Reader(frames, history)
+    pending: deque = deque()
+    segment_id = 0
+    bar = _bar(n_frames, progress)
+    try:
+        for k, s in enumerate(starts):
+            block, previous = reader.read(int(s), int(s) + cc.length)
+            if previous is not None and len(previous) == 0:
+                previous = None
+            residual = suppress(block, previous=previous, **sup)
+            comb = combine(residual, **{**asdict(cc), "step": cc.length})[0]
+            det = detect(comb, **asdict(config.detect))
+            cand = fuse(det, comb, **asdict(config.fuse))
+            cand["frame_start"], cand["frame_end"] = s, s + cc.length - 1
+            cand["combined_frame"] = k
+            pending.append(_Pending(cand, cc.length if cc.projection == "dp" else 0))
+            log.debug("combined frame %d (frames %d-%d): %d candidate pixels, %d fused points",
+                      k, s, s + cc.length - 1, det.count, len(cand))
+            segments = tables.empty(tables.SEGMENT)
+            if len(pending) == N_CORRELATE:
+                corr = correlate(*(p.table for p in pending), cc.step,
+                                 **asdict(config.correlate))
+                segments = corr.segments
+                segments["combined_frame"] = k - 2
+                segments["segment_id"] = np.arange(segment_id, segment_id + len(segments))
+                segment_id += len(segments)
+                for i, p in enumerate(pending):
+                    p.confirm(corr.index[:, i], segments)
+                yield pending.popleft().emit(segments)
+            if bar is not None:
+                bar.update(int(min(starts[k + 1] if k + 1 < len(starts) else n_frames,
+                                   n_frames) - bar.n))
+        while pending:
+            yield pending.popleft().emit(tables.empty(tables.SEGMENT))
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def detect_sequence(frames, config: ProcessConfig | None = None, *,
+                    progress: bool = False) -> dict[str, np.ndarray]:
+    """Run the front end over an in-memory sequence and collect the tables.
+
+    Parameters
+    ----------
+    frames : ndarray of shape (T, H, W) or irdetect.io.FrameSource
+    config : ProcessConfig, optional
+
+    Returns
+    -------
+    dict
+        ``candidates``, ``detections``, ``segments`` (``irdetect.tables`` dtypes; x =
+        column, y = row in px) and ``tracks`` (``initiate_tracks`` on the detections).
+
+    Examples
+    --------
+    >>> from irdetect.simulate import simulate
+    >>> frames, truth = simulate("wan2008", snr=4, rng=1)
+    >>> out = detect_sequence(frames)
+    >>> len(out["detections"]) > 0
+    True
+    """
+    config = config or ProcessConfig()
+    parts: dict[str, list] = {"candidates": [], "detections": [], "segments": []}
+    for chunk in iter_results(frames, config, progress=progress):
+        for name, rows in chunk.items():
+            parts[name].append(rows)
+    out = {name: (np.concatenate(rows) if rows else tables.empty(name))
+           for name, rows in parts.items()}
+    out["tracks"] = initiate_tracks(out["detections"], config)
+    return out
+
+
+def initiate_tracks(detections: np.ndarray, config: ProcessConfig) -> np.ndarray:
+    """Tracks from the confirmed detections (``irdetect.initiate``), TRACK table."""
+    try:
+        from irdetect.initiate import initiate_detections
+    except ImportError:      # helper B's module has not landed yet
+        log.warning("irdetect.initiate is not available: /tracks left empty")
+        return tables.empty(tables.TRACK)
+    return initiate_detections(detections, **asdict(config.initiate))
+
+
+def process_file(input, output, config: ProcessConfig | None = None, *, dataset=None,
+                 force: bool = False, progress: bool = False, attrs: dict | None = None) -> dict:
+    """Run ``irdetect process``: read a sequence, write a results file.
+
+    Parameters
+    ----------
+    input : str or os.PathLike
+        A sequence readable by ``irdetect.io.open_sequence``.
+    output : str or os.PathLike
+        The results file (``docs/format.md``); written atomically.
+    config : ProcessConfig, optional
+    dataset : str, optional
+        HDF5 dataset path of the frames.
+    force : bool
+        Overwrite an existing output.
+    progress : bool
+        tqdm bar over frames.
+    attrs : dict, optional
+        Extra root attributes for the results file (``irdetect.batch`` stores the input's
+        fingerprint here so a re-run can skip finished inputs).
+
+    Returns
+    -------
+    dict
+        ``frames``, ``combined_frames``, ``candidates``, ``detections``, ``segments``,
+        ``tracks`` (counts) and ``seconds`` (wall time).
+
+    Raises
+    ------
+    InputError
+        Unreadable input, too few frames (the message says how many are needed), an
+        existing output without ``force``.
+    """
+    from irdetect.io import ResultsWriter, check_output_path, open_sequence
+
+    config = config or ProcessConfig()
+    t0 = time.perf_counter()
+    check_output_path(output, force)
+    counts = {"candidates": 0, "detections": 0, "segments": 0}
+    with open_sequence(input, dataset) as src:
+        n_frames, height, width = src.shape
+        need = min_frames(config)
+        if n_frames < need:
+            raise InputError(f"the sequence has {n_frames} frames; detection needs at least "
+                             f"{need} (3 combined frames of {config.combine.length} frames, "
+                             f"step {config.combine.step})", input)
+        attrs = {"config": to_json(config), "input": os.fspath(Path(input).name),
+                 "combined_length": config.combine.length,
+                 "combined_step": config.combine.step,
+                 "n_frames": n_frames, "frame_height": height, "frame_width": width,
+                 **(attrs or {})}
+        detections = []
+        with ResultsWriter(output, force=force, attrs=attrs) as out:
+            n_combined = 0
+            for chunk in iter_results(src, config, progress=progress):
+                n_combined += 1
+                for name, rows in chunk.items():
+                    out.append(name, rows)
+                    counts[name] += len(rows)
+                detections.append(chunk["detections"])
+            dets = np.concatenate(detections) if detections else tables.empty(tables.DETECTION)
+            tracks = initiate_tracks(dets, config)
+            out.write("tracks", tracks)
+            out.attrs["n_combined"] = n_combined
+    seconds = time.perf_counter() - t0
+    log.info("%d frames -> %d combined frames, %d candidates, %d detections, %d segments, "
+             "%d tracks", n_frames, n_combined, counts["candidates"], counts["detections"],
+             counts["segments"], len(tracks))
+    return {"frames": int(n_frames), "combined_frames": n_combined, **counts,
+            "tracks": int(len(tracks)), "seconds": seconds}
+
+
+# --- helpers --------------------------------------------------------------------------
+
+class _Pending:
+    """Candidates of one combined frame waiting for the segments that may confirm them."""
+
+    def __init__(self, table: np.ndarray, dp_length: int = 0):
+        self.table = table
+        self.dp_length = dp_length
+        n = len(table)
+        self.vx = np.full(n, np.nan)
+        self.vy = np.full(n, np.nan)
+        self.seg_score = np.full(n, -np.inf)
+
+    def confirm(self, rows: np.ndarray, segments: np.ndarray) -> None:
+        """Mark ``rows`` confirmed; keep the velocity of the best-scoring segment."""
+        if len(rows) == 0:
+            return
+        self.table["confirmed"][rows] = True
+        # several segments may share a point: take them in increasing score so the
+        # best one is written last (a loop over a handful of segments)
+        for s in np.argsort(segments["score"], kind="stable"):
+            r = rows[s]
+            if segments["score"][s] >= self.seg_score[r]:
+                self.seg_score[r] = segments["score"][s]
+                self.vx[r], self.vy[r] = segments["vx"][s], segments["vy"][s]
+
+    def emit(self, segments: np.ndarray) -> dict:
+        c = self.table
+        keep = c["confirmed"]
+        det = np.zeros(int(keep.sum()), dtype=tables.DETECTION)
+        for name in ("x", "y", "frame_start", "frame_end", "combined_frame", "intensity",
+                     "score", "n_members"):
+            det[name] = c[name][keep]
+        det["vx"], det["vy"] = self.vx[keep], self.vy[keep]
+        if self.dp_length:
+            # the dp merit puts a target at its position in the window's last frame;
+            # report it at the window's middle time like the other projections
+            back = (self.dp_length - 1) / 2.0
+            det["x"] -= det["vx"] * back
+            det["y"] -= det["vy"] * back
+        return {"candidates": c, "detections": det, "segments": segments}
+
+
+class _Reader:
+    """Read windows [a, b) with the ``history`` raw frames before a, reusing overlap."""
+
+    def __init__(self, frames, history: int):
+        self.frames = frames
+        self.history = history
+        self.lo = 0
+        self.cache = None     # raw float32 frames [lo, lo + len(cache))
+
+    def read(self, a: int, b: int):
+        lo = max(0, a - self.history)
+        if self.cache is not None and self.lo <= lo < self.lo + len(self.cache):
+            have = self.cache[lo - self.lo:]
+            new = np.asarray(self.frames[self.lo + len(self.cache):b], dtype=np.float32)
+            data = np.concatenate([have, new]) if len(new) else have[:b - lo]
+        else:
+            data = np.asarray(self.frames[lo:b], dtype=np.float32)
+        self.lo, self.cache = lo, data
+        return data[a - lo:], data[:a - lo]
+
+
+def _bar(total: int, progress: bool):
+    if not progress:
+        return None
+    from tqdm import tqdm
+    return tqdm(total=total, unit="frame", desc="irdetect", leave=False)
