@@ -33,7 +33,9 @@ class SuppressConfig:
     """Clutter suppression (``irdetect.suppress.suppress``)."""
 
     method: str = "tophat"
-    size: int = 5
+    size: int = 9
+    guard: int = 1
+    history: int = 12
 
 
 @dataclass(frozen=True)
@@ -42,22 +44,31 @@ class CombineConfig:
 
     length: int = 12
     step: int = 12
-    projection: str = "max"
+    projection: str = "dp"
+    dp_radius: int = 1
+    dp_decay: float = 0.9
+    dp_smooth: float = 0.6
 
 
 @dataclass(frozen=True)
 class DetectConfig:
     """Directional threshold detection (``irdetect.detect.detect``)."""
 
-    window: int = 5
-    k: float = 4.0
+    window: int = 3
+    k: float = 3.5
+    sigma: str = "local"
+    tile: int = 32
+    smooth: float = 0.0
+    directions: int = 4
 
 
 @dataclass(frozen=True)
 class FuseConfig:
     """Groups and probability-weighted fusion (``irdetect.fuse.fuse``)."""
 
-    radius: float = 2.0
+    gap: int = 1
+    d_min: float = 0.5
+    min_members: int = 1
 
 
 @dataclass(frozen=True)
@@ -65,6 +76,11 @@ class CorrelateConfig:
     """Bidirectional 3-frame correlation (``irdetect.correlate.correlate``)."""
 
     max_speed: float = 1.5
+    tolerance: float = 2.0
+    constant_velocity: bool = True
+    max_deviation: float = 5.0
+    resolve: str = "cost"
+    min_score: float = 4.5
 
 
 # --- track initiation (zhang2010, liang2015; issues 4, 5) -----------------------------
