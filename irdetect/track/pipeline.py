@@ -82,6 +82,8 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if not 0 <= min_area <= max_area:
+        raise ValueError(f"need 0 <= min_area <= max_area, got {min_area!r}, {max_area!r}")
     if window < 1:
         raise ValueError(f"window must be >= 1, got {window!r}")
     if len(frames.shape) != 3:
