@@ -505,6 +505,10 @@ def _call_with(func, params: dict, **extra):
     return func(**extra, **{k: v for k, v in params.items() if k in names})
 
 
+def _default(func, name):
+    return inspect.signature(func).parameters[name].default
+
+
 def _panel_title(image, text, font_scale):
     (_, th), base = cv2.getTextSize(text, _FONT, font_scale, 1)
     put_text(image, text, (4, th + 4), font_scale)
@@ -591,7 +595,8 @@ def write_video(source, results, output, *, fps: float | None = None,
     config = results.config
     length = int(results.attrs.get("combined_length", 12))
     sup_params = dict(config.get("suppress", {}))
-    projection = config.get("combine", {}).get("projection", "max")
+    comb_params = {k: v for k, v in config.get("combine", {}).items()
+                   if k not in ("length", "step")}
     history = int(sup_params.get("history", 0)) if sup_params.get("method") == "temporal" else 0
     # display limits of the raw frames: a sample of frames spread over the sequence
     pick = np.unique(np.linspace(0, T - 1, min(T, 16)).round().astype(int))
@@ -612,14 +617,15 @@ def write_video(source, results, output, *, fps: float | None = None,
 
                 residual = _call_with(suppress, sup_params, frames=block,
                                       previous=tail if history else None)
-                comb = combine(residual, length=len(block), step=len(block),
-                               projection=projection)[0]
+                comb = _call_with(combine, comb_params, frames=residual, length=len(block),
+                                  step=len(block))[0]
                 views.append(stretch(residual, low=low, high=high, gamma=gamma))
                 views.append(np.broadcast_to(stretch(comb, low=low, high=high, gamma=gamma),
                                              block.shape))
                 k = start // length
                 titles += [f"suppressed ({sup_params.get('method', 'tophat')})",
-                           f"combined frame {k} ({projection})"]
+                           f"combined frame {k} "
+                           f"({comb_params.get('projection', _default(combine, 'projection'))})"]
                 if history:
                     tail = block[-history:] if tail is None else \
                         np.concatenate([tail, block])[-history:]
