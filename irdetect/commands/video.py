@@ -76,6 +76,15 @@ def render(source, results, output, args, *, force: bool):
                        force=force, progress=args.progress)
 
 
+def render_after_process(input, results_path, args) -> dict:
+    """`irdetect process --video OUT`: render the results just written."""
+    from irdetect.io import open_sequence, read_results
+
+    results = read_results(results_path)
+    with open_sequence(input, args.dataset) as src:
+        return render(src, results, args.video, args, force=args.force)
+
+
 def run(args) -> int:
     from irdetect.io import open_sequence, read_results
     from irdetect.io.video import check_video_path

@@ -192,6 +192,10 @@ class VideoWriter:
         return False
 
     def _commit(self) -> None:
+        # mkstemp / mkdtemp create private files; give the output the usual permissions
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(self._tmp, (0o777 if self.kind == "png" else 0o666) & ~umask)
         if self.kind == "png":
             if self.path.is_dir():
                 # check_video_path made sure it holds PNG frames only; move it aside
