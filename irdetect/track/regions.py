@@ -40,8 +40,8 @@ def extract_regions(frame: np.ndarray, *, suppress_size: int = 15, k: float = 4.
     min_grey, max_grey : float
         Keep regions whose mean raw grey g satisfies min_grey <= g <= max_grey.
     max_regions : int
-        At most this many regions are returned, the strongest (area x mean contrast)
-        first; bounds the work of a frame full of glints.
+        At most this many regions are returned, those of highest mean contrast first;
+        bounds the work of a frame full of glints.
     mask : ndarray of shape (H, W), bool, optional
         Search only where True (e.g. the band around the sea-sky line).
 
@@ -100,8 +100,7 @@ def _extract(img, size, k, min_contrast, min_area, max_area, min_grey, max_grey,
     keep &= (area >= min_area) & (area <= max_area) & (grey >= min_grey) & (grey <= max_grey)
     idx = np.flatnonzero(keep)
     if len(idx) > max_regions:
-        strength = area[idx] * contrast[idx]
-        idx = idx[np.argsort(-strength, kind="stable")[:max_regions]]
+        idx = idx[np.argsort(-contrast[idx], kind="stable")[:max_regions]]
     out = np.zeros(len(idx), REGION)
     out["x"], out["y"] = cents[idx, 0], cents[idx, 1]
     out["area"], out["grey"], out["contrast"] = area[idx], grey[idx], contrast[idx]
