@@ -383,3 +383,14 @@ def test_overlay_position_follows_the_pixel_centre_convention():
     img2 = np.zeros_like(img)
     draw_overlay(img2, 12, ov, Style(scale=3.0))          # outside the window: nothing
     assert not img2.any()
+
+
+def test_process_writes_the_video_after_the_results(scene, cli, tmp_path):
+    (tmp_path / "taken.avi").write_bytes(b"")
+    code, _, err = cli("process", scene["seq"], "-o", "r.h5", "--video", "taken.avi")
+    assert code == 2 and "--force" in err
+    assert not (tmp_path / "r.h5").exists()               # refused before processing
+    code, _, err = cli("process", scene["seq"], "-o", "r.h5", "--video", "v.avi", "--every", "2")
+    assert code == 0, err
+    frames, _ = _read_video(tmp_path / "v.avi")
+    assert len(frames) == T // 2 and (tmp_path / "r.h5").exists()
