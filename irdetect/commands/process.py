@@ -4,28 +4,47 @@ Suppresses clutter, forms combined frames, runs directional threshold detection,
 target groups, confirms them by bidirectional correlation over 3 combined frames and
 initiates tracks by Hough transform + subtractive clustering. Writes one HDF5 results
 file (/detections, /candidates, /segments, /tracks; docs/format.md).
+
+Several inputs (files, folders of sequences, globs) with --out-dir DIR: one results file
+per input, run on --jobs local processes or a Dask cluster (--scheduler), resumable, with
+a summary table (DIR/irdetect-summary.csv and .json; docs/batch.md).
 """
 
 from __future__ import annotations
 
 import logging
+import os
 from pathlib import Path
 
+from irdetect.batch import SCHEDULER_ENV
 from irdetect.config import load_config
 from irdetect.commands.video import add_style_arguments as add_video_arguments
 from irdetect.commands.video import render_after_process
 from irdetect.io.video import check_video_path
+from irdetect.errors import InputError
 
 log = logging.getLogger(__name__)
 
 
 def add_arguments(p):
-    p.add_argument("input", help="sequence: HDF5 file, folder of images, video file or .npy")
+    p.add_argument("inputs", nargs="+", metavar="INPUT",
+                   help="sequence: HDF5 file, folder of images, video file or .npy; several "
+                   "inputs, folders of sequences or glob patterns with --out-dir")
     p.add_argument("-o", "--output",
-                   help="results file (default: INPUT_NAME.irdetect.h5 in the current folder)")
+                   help="results file of a single input (default: INPUT_NAME.irdetect.h5 in "
+                   "the current folder)")
+    p.add_argument("--out-dir", metavar="DIR",
+                   help="batch: one INPUT_NAME.irdetect.h5 per input in DIR (created if "
+                   "missing), a summary table beside them; finished inputs are skipped")
+    p.add_argument("-j", "--jobs", type=int, metavar="N",
+                   help="batch: local worker processes (default: the core count)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="batch: Dask scheduler address (tcp://host:8786) or scheduler JSON "
+                   f"file (default: ${SCHEDULER_ENV}); needs irdetect[distributed]")
     p.add_argument("--config", help="TOML file with one table per stage (docs/cli.md)")
     p.add_argument("--dataset", help="HDF5 input: dataset path (default /frames)")
-    p.add_argument("--force", action="store_true", help="overwrite an existing output")
+    p.add_argument("--force", action="store_true",
+                   help="overwrite an existing output (batch: redo finished inputs)")
     p.add_argument("--video", metavar="OUT", help="single input: also write the annotated "
                    "video (.mp4, .avi or a PNG folder; options below, docs/video.md)")
     add_video_arguments(p)
@@ -40,8 +59,13 @@ def default_output(input_path) -> Path:
 
 def run(args) -> int:
     config = load_config(args.config)
+    if args.video and _is_batch(args):
+        raise InputError("--video needs a single input (use `irdetect video` per result)")
+    if _is_batch(args):
+        return run_batch(args, config)
     from irdetect.pipeline import process_file
 
+    args.input = args.inputs[0]
     output = args.output or default_output(args.input)
     if args.video:
         check_video_path(args.video, args.force)       # fail before the long run
@@ -52,3 +76,40 @@ def run(args) -> int:
     if args.video:
         render_after_process(args.input, output, args)
     return 0
+
+
+def _is_batch(args) -> bool:
+    """Batch mode: --out-dir, several inputs, or one input that is a pattern or a folder
+    of sequences (a folder of images is one sequence)."""
+    if args.jobs is not None and args.jobs < 1:
+        raise InputError(f"--jobs must be >= 1, got {args.jobs}")
+    if args.out_dir is not None:
+        if args.output is not None:
+            raise InputError("give either -o OUT.h5 (one input) or --out-dir DIR, not both")
+        return True
+    if len(args.inputs) == 1:
+        path = Path(args.inputs[0])
+        pattern = not path.exists() and any(c in args.inputs[0] for c in "*?[")
+        if not pattern and (not path.is_dir() or _image_folder(path)):
+            return False
+    what = (f"{len(args.inputs)} inputs" if len(args.inputs) > 1
+            else "a folder of sequences or a pattern")
+    raise InputError(f"{what}: give --out-dir DIR for the results"
+                     + (" (-o names the output of a single input)" if args.output else ""))
+
+
+def _image_folder(path: Path) -> bool:
+    from irdetect.batch import _is_image_folder
+    return _is_image_folder(path)
+
+
+def run_batch(args, config) -> int:
+    """Process every input into ``args.out_dir``; exit code 1 when any input failed."""
+    from irdetect.batch import format_summary, run_batch as batch
+
+    report = batch(args.inputs, args.out_dir, config, dataset=args.dataset, force=args.force,
+                   jobs=args.jobs, scheduler=args.scheduler or os.environ.get(SCHEDULER_ENV),
+                   progress=args.progress)
+    if not args.quiet:
+        print(format_summary(report))
+    return 1 if report.failed else 0
