@@ -224,7 +224,7 @@ class Style:
 
     @property
     def thickness(self) -> int:
-        return max(1, int(round(self.scale / 2)))
+        return max(1, int(round(self.scale * 0.75)))
 
     @property
     def font_scale(self) -> float:

@@ -143,7 +143,8 @@ def test_png_folder_draws_detections_exactly_where_they_are(scene, tmp_path):
             mean = img[hit].mean(axis=0)
             assert np.abs(mean - np.array(window_colour(k))).max() < 90
         # absent elsewhere
-        assert not (colour & ~_near(colour.shape, points, radius + 2)).any(), f"frame {t}"
+        # (a 2-px line, anti-aliased, reaches radius + 2.5)
+        assert not (colour & ~_near(colour.shape, points, radius + 3)).any(), f"frame {t}"
 
 
 @pytest.mark.parametrize("suffix", [".mp4", ".avi"])
