@@ -32,7 +32,7 @@ METHODS = ("tophat", "maxmean", "maxmedian", "temporal", "none")
 MAD_TO_SIGMA = 1.4826
 
 
-def suppress(frames, previous=None, *, method: str = "tophat", size: int = 9,
+def suppress(frames, previous=None, *, method: str = "temporal", size: int = 9,
              guard: int = 1, history: int = 12) -> np.ndarray:
     """Suppress the background of one frame or a stack of frames.
 

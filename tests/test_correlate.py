@@ -1,0 +1,73 @@
+"""Bidirectional correlation: constant-velocity targets linked, unrelated points rejected."""
+
+import numpy as np
+import pytest
+
+from irdetect.correlate import correlate
+from irdetect.tables import SEGMENT
+
+
+def _pts(*xy):
+    return np.array(xy, float).reshape(-1, 2)
+
+
+@pytest.mark.parametrize("vx, vy", [(1.0, 0.0), (-0.7, 0.7), (0.0, -1.2), (0.0, 0.0)])
+def test_links_a_constant_velocity_target(vx, vy):
+    p = np.array([100.0, 80.0])
+    v = 12 * np.array([vx, vy])
+    c = correlate(_pts(p), _pts(p + v + [0.4, -0.3]), _pts(p + 2 * v), step=12, min_score=0)
+    assert len(c.segments) == 1 and c.segments.dtype == SEGMENT
+    assert c.segments["vx"][0] == pytest.approx(vx) and c.segments["vy"][0] == pytest.approx(vy)
+    assert c.index.tolist() == [[0, 0, 0]]
+    assert c.confirmed(1, 1).all()
+
+
+def test_rejects_three_unrelated_points():
+    c = correlate(_pts(20, 20), _pts(120, 60), _pts(40, 200), step=12, min_score=0)
+    assert len(c.segments) == 0 and c.segments.dtype == SEGMENT
+
+
+def test_rejects_a_bent_chain_unless_paper_mode():
+    # within the motion bound each step, but turning 90 degrees: not constant velocity
+    a, b, c3 = _pts(50, 50), _pts(62, 50), _pts(62, 62)
+    assert len(correlate(a, b, c3, step=12, min_score=0).segments) == 0
+    assert len(correlate(a, b, c3, step=12, min_score=0, constant_velocity=False,
+                         resolve="all").segments) == 1
+
+
+def test_ambiguity_resolution_modes():
+    # two targets 6 px apart moving in parallel: 'all' also links across them
+    p1 = _pts([50, 50], [50, 56])
+    p2 = p1 + [12, 0]
+    p3 = p1 + [24, 0]
+    kw = dict(step=12, min_score=0, constant_velocity=False, max_speed=1.5)
+    every = correlate(p1, p2, p3, resolve="all", **kw)
+    unique = correlate(p1, p2, p3, resolve="unique", **kw)
+    cost = correlate(p1, p2, p3, resolve="cost", **kw)
+    assert len(every.segments) == 8
+    assert len(unique.segments) == 0            # the paper relies on uniqueness: none left
+    assert sorted(map(tuple, cost.index)) == [(0, 0, 0), (1, 1, 1)]
+
+
+def test_score_threshold_uses_point_scores():
+    pts = [np.zeros(1, dtype=[("x", "f8"), ("y", "f8"), ("score", "f8")]) for _ in range(3)]
+    for i, p in enumerate(pts):
+        p["x"], p["y"], p["score"] = 10 + 12 * i, 10, 4.0
+    assert len(correlate(*pts, step=12, min_score=3.9).segments) == 1
+    assert len(correlate(*pts, step=12, min_score=4.5).segments) == 0
+    assert correlate(*pts, step=12, min_score=0).segments["score"][0] == pytest.approx(4.0)
+
+
+def test_empty_inputs():
+    c = correlate(_pts(), _pts(1, 1), _pts(), step=12)
+    assert len(c.segments) == 0 and c.index.shape == (0, 3)
+
+
+@pytest.mark.parametrize("kwargs, name", [
+    ({"step": 0}, "step"), ({"max_speed": -1}, "max_speed"), ({"tolerance": -1}, "tolerance"),
+    ({"max_deviation": 0}, "max_deviation"), ({"resolve": "best"}, "resolve"),
+    ({"min_score": float("nan")}, "min_score")])
+def test_bad_parameters_are_named(kwargs, name):
+    args = {"step": 12, **kwargs}
+    with pytest.raises(ValueError, match=name):
+        correlate(_pts(1, 1), _pts(1, 1), _pts(1, 1), **args)
