@@ -32,7 +32,7 @@ from irdetect.errors import InputError
 class SuppressConfig:
     """Clutter suppression (``irdetect.suppress.suppress``)."""
 
-    method: str = "tophat"
+    method: str = "temporal"
     size: int = 9
     guard: int = 1
     history: int = 12
