@@ -188,3 +188,13 @@ def test_config_mirrors_track_keywords():
     keywords = {n: p.default for n, p in inspect.signature(track).parameters.items()
                 if p.kind is inspect.Parameter.KEYWORD_ONLY}
     assert {f.name: f.default for f in dataclasses.fields(config.TrackConfig)} == keywords
+
+
+def test_harbour_merge_keeps_both_ids():
+    from irdetect.simulate.harbour import simulate_harbour
+    frames, truth = simulate_harbour(n_frames=160, merge_frame=40, rng=5)   # T4 not yet in
+    points, summary = track(frames, sea_sky=True)
+    r = clear_mot(truth, points, gate=5)
+    assert r["id_switches"] == 0 and r["mota"] > 0.95 and len(summary) == 3
+    ids = _ids_by_target(points, truth[(truth["frame"] < 35) | (truth["frame"] > 145)])
+    assert all(len(v) == 1 for v in ids.values()) and len(set.union(*ids.values())) == 3

@@ -360,7 +360,8 @@ class FCMPMHTTracker(_TrackerBase):
     The paper's objective functions J1, J2 and its dQ formula are lost in the text. We use
     FCM memberships of the current regions to the *fixed* predicted tracks (no centre update)
     under D^2 = w_p d_p^2 + w_g d_g^2 + w_s d_s^2 [+ w_a d_a^2], with d_p the Mahalanobis
-    distance to the prediction, d_g = dg / grey_scale, d_s = ds / (area_scale s_track),
+    distance to the prediction, d_g = dg / grey_scale, d_s = ds / (area_scale max(s_track, s_region)) (symmetric, so a
+    ship entering the image and growing from a sliver is not lost),
     d_a^2 = 1 - cos(angle between the track velocity and the step to the region), plus a
     noise cluster at distance ``gate``. dQ is driven by the part of the squared innovation
     the filter did not expect: a_x = max(e_x^2 - S_xx, 0) 4 / T^4, likewise a_y, and the
@@ -422,8 +423,9 @@ class FCMPMHTTracker(_TrackerBase):
         area = np.array([t.area for t in self.tracks])
         D2 = wp * d2
         D2 = D2 + wg * ((regions["grey"][None, :] - grey[:, None]) / self.grey_scale) ** 2
-        D2 = D2 + ws * ((regions["area"][None, :] - area[:, None])
-                        / (self.area_scale * area[:, None])) ** 2
+        ra = regions["area"][None, :]
+        D2 = D2 + ws * ((ra - area[:, None])
+                        / (self.area_scale * np.maximum(ra, area[:, None]))) ** 2
         if wa > 0:
             v = np.array([[t.x[1], t.x[3]] for t in self.tracks])
             speed = np.hypot(v[:, 0], v[:, 1])

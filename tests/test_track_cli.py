@@ -1,0 +1,50 @@
+"""irdetect track: results file contents, options, and user errors."""
+
+import json
+
+import numpy as np
+import pytest
+
+from irdetect import tables
+from irdetect.cli import main
+from irdetect.io import read_results, write_sequence
+from irdetect.metrics.mot import clear_mot
+from irdetect.simulate.harbour import simulate_harbour
+
+
+@pytest.fixture(scope="module")
+def harbour_file(tmp_path_factory):
+    frames, truth = simulate_harbour(n_frames=40, rng=3)
+    path = tmp_path_factory.mktemp("seq") / "harbour.h5"
+    write_sequence(path, frames, truth=truth, attrs={"frame_rate": 25.0})
+    return path, truth
+
+
+def test_track_writes_points_tracks_and_attrs(harbour_file, tmp_path):
+    path, truth = harbour_file
+    out = tmp_path / "out.h5"
+    assert main(["track", str(path), "-o", str(out), "--sea-sky", "-q"]) == 0
+    res = read_results(out)
+    points, tracks = res["track_points"], res["tracks"]
+    assert points.dtype == tables.TRACK_POINT and tracks.dtype == tables.TRACK
+    assert len(tracks) == 3 and set(points["track_id"]) == set(tracks["track_id"])
+    assert res.attrs["input"] == "harbour.h5" and res.attrs["irdetect_version"]
+    assert json.loads(res.attrs["config"])["track"]["sea_sky"] is True
+    r = clear_mot(truth, points, gate=5)
+    assert r["mota"] > 0.9 and r["id_switches"] == 0
+    # the baseline through the CLI, and the same output refused without --force
+    assert main(["track", str(path), "-o", str(out), "--method", "gnn", "-q"]) == 2
+    assert main(["track", str(path), "-o", str(out), "--method", "gnn", "-q", "--force"]) == 0
+    assert json.loads(read_results(out).attrs["config"])["track"]["method"] == "gnn"
+
+
+def test_user_errors_exit_2_without_partial_output(tmp_path, capsys):
+    out = tmp_path / "x.h5"
+    assert main(["track", str(tmp_path / "missing.h5"), "-o", str(out)]) == 2
+    assert "error" in capsys.readouterr().err and not out.exists()
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[track]\ngate = 'wide'\n")
+    seq = tmp_path / "s.h5"
+    write_sequence(seq, np.zeros((2, 20, 20), np.uint8))
+    assert main(["track", str(seq), "-o", str(out), "--config", str(bad)]) == 2
+    assert "track.gate must be float" in capsys.readouterr().err and not out.exists()
