@@ -110,3 +110,14 @@ def test_point_annotations(tmp_path):
     path.write_text("1 2\nabc\n")
     with pytest.raises(InputError, match="line 2"):
         read_point_annotations(path)
+
+
+def test_outputs_get_the_usual_permissions(tmp_path):
+    import os
+    import stat
+
+    write_sequence(tmp_path / "a.h5", np.zeros((2, 3, 4), np.uint8))
+    mode = stat.S_IMODE((tmp_path / "a.h5").stat().st_mode)
+    mask = os.umask(0)
+    os.umask(mask)
+    assert mode == 0o666 & ~mask

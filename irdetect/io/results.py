@@ -67,11 +67,18 @@ class AtomicH5:
         try:
             self.file.close()
             if exc_type is None:
+                os.chmod(self._tmp, 0o666 & ~_umask())  # mkstemp makes it private (0600)
                 os.replace(self._tmp, self.path)
         finally:
             if os.path.exists(self._tmp):
                 os.unlink(self._tmp)
         return False
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 class ResultsWriter(AtomicH5):
