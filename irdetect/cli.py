@@ -21,6 +21,7 @@ COMMANDS = [
     ("simulate", "simulate", "write a synthetic IR sequence with ground truth"),
     ("convert", "convert", "convert any readable sequence (HDF5, image folder, video, .npy) to HDF5"),
     ("info", "info", "say what a sequence, scans or results file holds"),
+    ("evaluate", "evaluate", "score a results file against ground truth"),
     ("video", "video", "write an annotated video (.mp4, .avi or PNG frames) of a sequence and its results"),
     ("plot", "plot", "draw the tracks over the max projection and the Hough accumulator"),
     ("track", "track", "track small targets frame by frame (FCM + adaptive PMHT)"),

@@ -212,6 +212,7 @@ def process_file(input, output, config: ProcessConfig | None = None, *, dataset=
                              f"{need} (3 combined frames of {config.combine.length} frames, "
                              f"step {config.combine.step})", input)
         attrs = {"config": to_json(config), "input": os.fspath(Path(input).name),
+                 "input_path": os.fspath(Path(input).resolve()),
                  "combined_length": config.combine.length,
                  "combined_step": config.combine.step,
                  "n_frames": n_frames, "frame_height": height, "frame_width": width,

@@ -1,0 +1,98 @@
+"""Detection scores: Pd one-to-one within the gate, false detections, pixel-level Fa; the CLI."""
+
+import json
+
+import numpy as np
+import pytest
+
+from irdetect import tables
+from irdetect.io import write_sequence
+from irdetect.metrics.detection import path_distance, score_detections
+from irdetect.pipeline import detect_sequence
+from irdetect.simulate import simulate
+
+
+def _truth():
+    # target 0 moves 1 px/frame along y = 10 from x = 10 over 24 frames (2 windows of 12)
+    f = np.arange(24)
+    return tables.from_columns(tables.TRUTH, frame=f, target=np.zeros(24, int),
+                               x=10.0 + f, y=np.full(24, 10.0), amplitude=np.ones(24))
+
+
+def _dets(rows):
+    out = np.zeros(len(rows), tables.DETECTION)
+    for i, (x, y, k) in enumerate(rows):
+        out[i]["x"], out[i]["y"], out[i]["combined_frame"] = x, y, k
+    return out
+
+
+def test_path_distance():
+    path = np.array([[0.0, 0.0], [10.0, 0.0]])
+    d = path_distance(np.array([[5.0, 3.0], [-4.0, 3.0], [12.0, 0.0]]), path)
+    np.testing.assert_allclose(d, [3.0, 5.0, 2.0])
+    assert path_distance(np.array([[3.0, 4.0]]), np.zeros((1, 2)))[0] == pytest.approx(5.0)
+
+
+def test_one_to_one_matching_false_detections_and_pixel_fa():
+    dets = _dets([(15.0, 11.0, 0),      # on window 0's path (x 10..21): detected
+                  (16.0, 10.0, 0),      # a second detection of the same target: false
+                  (40.0, 40.0, 0),      # far away: false
+                  (30.0, 12.9, 1),      # window 1 path x 22..33, 2.9 px off: detected
+                  (45.0, 10.0, 1)])     # beyond the path's end (12 px): false
+    m = score_detections(dets, _truth(), n_frames=24, length=12, step=12, shape=(100, 200))
+    assert m["windows"] == 2 and m["targets"] == 2 and m["detected"] == 2 and m["pd"] == 1.0
+    assert m["false"] == 3 and m["false_per_window"] == 1.5
+    assert m["false_per_mpx_window"] == pytest.approx(1.5 / 0.02)
+    assert m["pixel_fa"] == pytest.approx(27 / (2 * 100 * 200))   # three 3x3 squares
+    tight = score_detections(dets, _truth(), n_frames=24, length=12, step=12,
+                             shape=(100, 200), gate=2.0)
+    assert tight["detected"] == 1 and tight["false"] == 4
+
+
+def test_no_detections_and_no_truth():
+    m = score_detections(_dets([]), _truth(), n_frames=24, length=12, step=12, shape=(50, 50))
+    assert m["pd"] == 0.0 and m["false"] == 0 and m["pixel_fa"] == 0.0
+    empty = tables.empty(tables.TRUTH)
+    m = score_detections(_dets([(1, 1, 0)]), empty, n_frames=24, length=12, step=12,
+                         shape=(50, 50))
+    assert np.isnan(m["pd"]) and m["false"] == 1
+    with pytest.raises(ValueError, match="gate"):
+        score_detections(_dets([]), empty, n_frames=24, length=12, step=12, shape=(5, 5),
+                         gate=0)
+
+
+def test_cli_process_then_evaluate(cli, tmp_path):
+    frames, truth = simulate("wan2008", snr=6, rng=2, n_frames=48, height=96, width=128,
+                             n_targets=2, directions=(0.0, 90.0))
+    write_sequence(tmp_path / "seq.h5", frames, truth=truth)
+    code, _, err = cli("process", "seq.h5", "-o", "res.h5", "-q")
+    assert code == 0, err
+    code, out, _ = cli("evaluate", "res.h5", "--truth", "seq.h5", "--json")
+    assert code == 0
+    scores = json.loads(out)["detection"]
+    # the two targets cross in the last window (one fused point there); nothing false
+    assert scores["targets"] == 8 and scores["detected"] == 7 and scores["false"] == 0
+    mem = score_detections(detect_sequence(frames)["detections"], truth, n_frames=48,
+                           length=12, step=12, shape=(96, 128))
+    assert mem == pytest.approx(scores)
+    code, out, _ = cli("evaluate", "res.h5")            # truth from the results' input
+    assert code == 0 and "pd" in out and "false_per_mpx_window" in out
+    # point annotations (x y per frame) are accepted as truth too
+    lines = "\n".join(f"{x} {y}" for x, y in truth[truth["target"] == 0][["x", "y"]].tolist())
+    (tmp_path / "truth.txt").write_text(lines + "\n")
+    code, out, _ = cli("evaluate", "res.h5", "--truth", "truth.txt", "--json")
+    assert code == 0 and json.loads(out)["detection"]["targets"] == 4
+
+
+def test_cli_evaluate_bad_input(cli, tmp_path):
+    frames, _ = simulate("wan2008", snr=4, rng=2, n_frames=48, height=64, width=64,
+                         n_targets=1, directions=(0.0,))
+    write_sequence(tmp_path / "notruth.h5", frames)
+    code, _, err = cli("process", "notruth.h5", "-o", "res.h5", "-q")
+    assert code == 0
+    code, _, err = cli("evaluate", "res.h5", "--truth", "notruth.h5")
+    assert code == 2 and "has no /truth" in err and "Traceback" not in err
+    code, _, err = cli("evaluate", "missing.h5", "--truth", "notruth.h5")
+    assert code == 2 and "not found" in err
+    code, _, err = cli("evaluate", "res.h5", "--truth", "notruth.h5", "--gate", "-1")
+    assert code == 2 and "--gate" in err
