@@ -48,3 +48,16 @@ def test_user_errors_exit_2_without_partial_output(tmp_path, capsys):
     write_sequence(seq, np.zeros((2, 20, 20), np.uint8))
     assert main(["track", str(seq), "-o", str(out), "--config", str(bad)]) == 2
     assert "track.gate must be float" in capsys.readouterr().err and not out.exists()
+
+
+def test_evaluate_scores_track_points(harbour_file, tmp_path, capsys):
+    evaluate = pytest.importorskip("irdetect.commands.evaluate")
+    if "track_points" not in [table for _, table, _ in evaluate.SECTIONS]:
+        pytest.skip("irdetect evaluate has no CLEAR-MOT section yet")
+    path, _ = harbour_file
+    out = tmp_path / "t.h5"
+    assert main(["track", str(path), "-o", str(out), "--sea-sky", "-q"]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", str(out), "--gate", "5", "--json"]) == 0
+    scores = json.loads(capsys.readouterr().out)["tracking (CLEAR-MOT)"]
+    assert scores["mota"] > 0.9 and scores["id_switches"] == 0 and scores["n_targets"] == 3

@@ -43,8 +43,11 @@ def run(args) -> int:
     check_output_path(output, args.force)
     params = {k: getattr(config.track, k) for k in config.track.__dataclass_fields__}
     with open_sequence(args.input, dataset=args.dataset) as source, \
-            ResultsWriter(output, force=args.force,
-                          attrs={"config": to_json(config), "input": path.name}) as out:
+            ResultsWriter(output, force=args.force, attrs={
+                "config": to_json(config), "input": path.name,
+                "input_path": str(path.resolve()), "n_frames": source.shape[0],
+                "frame_height": source.shape[1], "frame_width": source.shape[2],
+                "frame_rate": source.frame_rate or float("nan")}) as out:
         out.append("track_points", tables.empty(tables.TRACK_POINT))
         points, summary = track(source, lambda rows: out.append("track_points", rows),
                                 args.progress, **params)
