@@ -403,10 +403,11 @@ def _initiate(x, y, t, sidx, uscans, polar, p):
         return _finish(win, tracks, p)
     peaks = _select_peaks(win, p)              # list of (group, rho_local, theta, value)
     tracks = []
+    seen: dict = {}                            # member set -> tracks found from it
     for g, rho, theta, value in peaks:
-        for members in _tracks_of_peak(win, g, rho, theta, p):
+        for members in _tracks_of_peak(win, g, rho, theta, p, seen):
             tracks.append((members, g, rho, theta, value))
-    tracks = _dedupe(tracks, win)
+    tracks = _dedupe(tracks, win, within=p["verify"])
     return _finish(win, tracks, p)
 
 
@@ -493,7 +494,7 @@ def _opencv_peaks(win: _Window, acc, thr, p):
     return out
 
 
-def _tracks_of_peak(win: _Window, g, rho, theta, p):
+def _tracks_of_peak(win: _Window, g, rho, theta, p, seen=None):
     """Members of one selected cell, split into constant-velocity tracks when verifying."""
     sl = win.group_members(g)
     lx, ly = win.lx[sl], win.ly[sl]
@@ -514,7 +515,15 @@ def _tracks_of_peak(win: _Window, g, rho, theta, p):
         return []
     if not p["verify"]:
         return [idx]
-    return _cv_tracks(win, idx, theta, p)
+    if np.unique(win.sidx[idx]).size < _min_points(win, p):
+        return []
+    key = idx.tobytes()
+    if seen is not None and key in seen:       # the same measurements as an earlier cell
+        return [] if p["verify"] else seen[key]
+    found = _cv_tracks(win, idx, theta, p)
+    if seen is not None:
+        seen[key] = found
+    return found
 
 
 def _min_points(win, p):
@@ -596,11 +605,15 @@ def _refine(win, idx, members, pool, p, rounds: int = 2):
     return members
 
 
-def _dedupe(tracks, win):
-    """Drop a track sharing half its measurements or more with a better track of another
-    tile (the same track seen by overlapping tiles; tracks within one tile are kept, so
-    the peak clustering of a method stays visible)."""
-    if len(tracks) < 2 or win.n_groups == 1:
+def _dedupe(tracks, win, within: bool = False):
+    """Drop a track sharing half its measurements or more with a better track.
+
+    Without ``within`` only tracks of other tiles count (the same track seen by
+    overlapping tiles), so the peak clustering of a method in the paper's form
+    (``verify=False``) stays visible; with ``within`` (``verify=True``) two selected cells
+    that lead to the same constant-velocity track give it once.
+    """
+    if len(tracks) < 2 or (win.n_groups == 1 and not within):
         return tracks
     order = sorted(range(len(tracks)), key=lambda i: (-len(tracks[i][0]), -tracks[i][4]))
     owner = np.full(win.x.size, -1)
@@ -608,7 +621,7 @@ def _dedupe(tracks, win):
     for i in order:
         m, g = tracks[i][0], tracks[i][1]
         own = owner[m]
-        other = (own >= 0) & (own != g)
+        other = (own >= 0) & ((own != g) | within)
         if other.sum() * 2 >= m.size:
             continue
         owner[m[own < 0]] = g
