@@ -1,0 +1,72 @@
+import math
+
+import numpy as np
+import pytest
+
+from irdetect.hough import (fuzzy_hough_transform, hough_grid, hough_transform, nms_peaks,
+                            parallel_combine, rho_sigma)
+
+
+def test_cell_centres_follow_the_paper():
+    g = hough_grid(rho_max=10, n_rho=4, n_theta=4)
+    assert np.allclose(g.theta_centres, (np.arange(4) + 0.5) * math.pi / 4)
+    assert np.allclose(g.rho_centres, [-7.5, -2.5, 2.5, 7.5])
+
+
+def test_line_peaks_at_its_cell():
+    g = hough_grid(rho_max=100, rho_step=1.0, n_theta=180)
+    theta, rho = g.theta_centres[60], 30.2
+    s = np.linspace(-40, 40, 15)
+    x = rho * math.cos(theta) - s * math.sin(theta)
+    y = rho * math.sin(theta) + s * math.cos(theta)
+    acc = hough_transform(x, y, grid=g)[0]
+    j, n = np.unravel_index(np.argmax(acc), acc.shape)
+    assert acc.max() == 15 and n == 60 and abs(g.rho_centres[j] - rho) <= 0.5
+
+
+def test_fuzzy_noiseless_line_peaks_at_right_cell_and_range_zero_is_safe():
+    g = hough_grid(rho_max=100, rho_step=1.0, n_theta=90)
+    theta, rho = g.theta_centres[20], 40.0
+    s = np.linspace(-30, 30, 5)
+    x = rho * math.cos(theta) - s * math.sin(theta)
+    y = rho * math.sin(theta) + s * math.cos(theta)
+    sr = rho_sigma(g.theta_centres, x=x, y=y, sigma_range=1.0, sigma_azimuth=0.01)
+    acc = fuzzy_hough_transform(x, y, grid=g, sigma_rho=sr)[0]
+    j, n = np.unravel_index(np.argmax(acc), acc.shape)
+    assert n == 20 and abs(g.rho_centres[j] - rho) <= 0.5
+    # a measurement at the radar: range 0, the azimuth term vanishes; no NaN, the spread
+    # is floored at half a cell (rho = 0 lies on a cell edge: exp(-1/2) in both cells)
+    sr0 = rho_sigma(g.theta_centres, x=np.zeros(1), y=np.zeros(1), sigma_range=0.0,
+                    sigma_azimuth=0.01, range_=np.zeros(1), azimuth=np.zeros(1))
+    a0 = fuzzy_hough_transform([0.0], [0.0], grid=g, sigma_rho=sr0)
+    assert np.isfinite(a0).all() and a0.max() == pytest.approx(math.exp(-0.5))
+
+
+def test_parallel_rule_removes_single_scan_cell():
+    per_scan = np.zeros((3, 4, 4))
+    per_scan[:, 1, 1] = 1.0          # supported by every scan
+    per_scan[0, 2, 2] = 5.0          # one scan only, however strong
+    b = parallel_combine(per_scan)
+    assert b[1, 1] == 3 and b[2, 2] == 0
+    assert parallel_combine(per_scan, q1=1.0)[1, 1] == 0
+
+
+def test_absurd_resolution_is_refused_with_the_reason():
+    with pytest.raises(ValueError, match="limit"):
+        hough_grid(rho_max=1e6, rho_step=1e-3, n_theta=1000)
+    with pytest.raises(ValueError, match="rho_step"):
+        hough_grid(rho_max=10, rho_step=0.0)
+
+
+def test_nan_points_rejected():
+    g = hough_grid(rho_max=10, n_rho=10, n_theta=10)
+    with pytest.raises(ValueError, match="NaN"):
+        hough_transform([np.nan], [1.0], grid=g)
+
+
+def test_nms_keeps_one_per_peak():
+    acc = np.zeros((20, 20))
+    acc[5, 5], acc[5, 6], acc[6, 5] = 9, 8, 7
+    acc[15, 12] = 6
+    pk = nms_peaks(acc, size=3, threshold=5)
+    assert pk.tolist() == [[5, 5], [15, 12]]
