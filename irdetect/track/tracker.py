@@ -345,7 +345,8 @@ class FCMPMHTTracker(_TrackerBase):
         younger one ends (a duplicate, not a merge).
     merge_margin : float
         A track shares a region when its prediction lies inside the region's bounding box
-        grown by this many pixels.
+        grown by this many pixels. A region holding one confirmed prediction feeds only that
+        track (so a target coming out of a merge cannot grab the blob it left).
     max_tracks : int
         Cap on live tracks (tentative included): bounds the work in a glint storm.
     init_speed : float
@@ -451,19 +452,22 @@ class FCMPMHTTracker(_TrackerBase):
             return assign, shared, blocked
         d2 = self._gate_matrix(z)
         ok = d2 <= self.gate ** 2
-        D2 = np.where(ok, self._distances(regions, z, d2), np.inf)
-        u = fcm_memberships(np.sqrt(D2), m=self.m,
-                            noise_distance=self.gate * np.sqrt(max(self.w[0], 1e-12)))
-        self.last_memberships = u
-        best = np.argmax(u, axis=0)                     # most probable hypothesis per region
         confirmed = np.array([t.confirmed for t in self.tracks])
-        # merges: a region whose grown box holds >= 2 confirmed predictions feeds no one
+        # merges: a region whose grown box holds >= 2 confirmed predictions feeds no one, and
+        # one that holds exactly one confirmed prediction feeds only that track
         pred = np.array([[t.x[0], t.x[2]] for t in self.tracks])
         mm = self.merge_margin
         inside = ((pred[:, 0:1] >= regions["bx"][None, :] - mm)
                   & (pred[:, 0:1] <= (regions["bx"] + regions["bw"] - 1)[None, :] + mm)
                   & (pred[:, 1:2] >= regions["by"][None, :] - mm)
                   & (pred[:, 1:2] <= (regions["by"] + regions["bh"] - 1)[None, :] + mm))
+        owned = (inside & confirmed[:, None]).sum(axis=0) == 1
+        foreign = owned[None, :] & ~inside
+        D2 = np.where(ok & ~foreign, self._distances(regions, z, d2), np.inf)
+        u = fcm_memberships(np.sqrt(D2), m=self.m,
+                            noise_distance=self.gate * np.sqrt(max(self.w[0], 1e-12)))
+        self.last_memberships = u
+        best = np.argmax(u, axis=0)                     # most probable hypothesis per region
         n_inside = (inside & confirmed[:, None]).sum(axis=0)
         shared_regions = n_inside >= 2
         for ri in np.flatnonzero(shared_regions):
