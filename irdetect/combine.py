@@ -28,7 +28,7 @@ def frames_needed(n_combined: int, *, length: int = 12, step: int = 12) -> int:
 
 
 def combine(frames, *, length: int = 12, step: int = 12, projection: str = "dp",
-            dp_radius: int = 1, dp_decay: float = 0.9, dp_smooth: float = 0.6) -> np.ndarray:
+            dp_radius: int = 1, dp_decay: float = 0.95, dp_smooth: float = 0.6) -> np.ndarray:
     """Project windows of ``length`` frames, every ``step`` frames, into combined frames.
 
     Parameters
@@ -113,7 +113,7 @@ def _dp(block: np.ndarray, radius: int, decay: float, smooth: float, out: np.nda
     out[...] = merit
 
 
-def _project(block: np.ndarray, projection: str, out: np.ndarray, dp=(1, 0.9, 0.6)) -> None:
+def _project(block: np.ndarray, projection: str, out: np.ndarray, dp=(1, 0.95, 0.6)) -> None:
     if projection == "dp":
         _dp(block, *dp, out)
     elif projection == "max":

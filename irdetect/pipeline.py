@@ -157,11 +157,8 @@ def detect_sequence(frames, config: ProcessConfig | None = None, *,
 
 def initiate_tracks(detections: np.ndarray, config: ProcessConfig) -> np.ndarray:
     """Tracks from the confirmed detections (``irdetect.initiate``), TRACK table."""
-    try:
-        from irdetect.initiate import initiate_detections
-    except ImportError:      # helper B's module has not landed yet
-        log.warning("irdetect.initiate is not available: /tracks left empty")
-        return tables.empty(tables.TRACK)
+    from irdetect.initiate import initiate_detections
+
     return initiate_detections(detections, **asdict(config.initiate))
 
 
