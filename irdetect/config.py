@@ -46,7 +46,7 @@ class CombineConfig:
     step: int = 12
     projection: str = "dp"
     dp_radius: int = 1
-    dp_decay: float = 0.9
+    dp_decay: float = 0.95
     dp_smooth: float = 0.6
 
 
