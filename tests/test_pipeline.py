@@ -111,3 +111,18 @@ def test_progress_bar_and_iterator_order(capsys):
     chunks = list(iter_results(frames, progress=True))
     assert [int(c["candidates"]["combined_frame"][0]) if len(c["candidates"]) else k
             for k, c in enumerate(chunks)] == [0, 1, 2, 3]
+
+
+def test_real_sequence_easy1():
+    from conftest import real_sequence
+    from irdetect.io import open_sequence, read_point_annotations
+
+    folder = real_sequence("easy1")
+    with open_sequence(folder / "frames") as src:
+        frames = src[:]
+    truth = read_point_annotations(folder / "truth.txt", len(frames))
+    out = detect_sequence(frames)
+    m = score_detections(out["detections"], truth, n_frames=len(frames), length=12, step=12,
+                         shape=frames.shape[1:], gate=5.0)   # gate of its README
+    assert m["targets"] == 3 and m["detected"] >= 2
+    assert m["false_per_window"] <= 1.0
