@@ -191,8 +191,10 @@ def _location_scale(s: np.ndarray, sigma: str, tile: int):
         return np.float32(med), np.float32(max(sc, tiny))
     ny, nx = max(1, h // tile), max(1, w // tile)
     th, tw = h // ny, w // nx
-    blocks = s[:ny * th, :nx * tw].reshape(ny, th, nx, tw).transpose(0, 2, 1, 3)
-    blocks = blocks.reshape(ny, nx, th * tw)
+    # every other pixel in each direction: the median and MAD of a tile need no more,
+    # and this is the stage's main cost
+    blocks = s[:ny * th, :nx * tw].reshape(ny, th, nx, tw)[:, ::2, :, ::2]
+    blocks = blocks.transpose(0, 2, 1, 3).reshape(ny, nx, -1)
     med = np.median(blocks, axis=2)
     dev = np.abs(blocks - med[..., None])
     sc = MAD_TO_SIGMA * np.median(dev, axis=2)

@@ -246,18 +246,19 @@ def _maxmedian(frame: np.ndarray, size: int, guard: int) -> np.ndarray:
 def _temporal(stack: np.ndarray, history: int, size: int, past: np.ndarray | None):
     n_past = 0 if past is None else len(past)
     full = stack if past is None else np.concatenate([past, stack])
-    # running sum over the previous `history` frames via a cumulative sum (float64 for
-    # accuracy over long blocks)
-    csum = np.cumsum(full, axis=0, dtype=np.float64)
-    csum = np.concatenate([np.zeros((1,) + full.shape[1:]), csum])
-    idx = np.arange(n_past, len(full))
-    lo = np.maximum(idx - history, 0)
-    count = (idx - lo).astype(np.float64)
     out = np.empty_like(stack)
-    have = count > 0
-    if have.any():
-        bg = (csum[idx[have]] - csum[lo[have]]) / count[have][:, None, None]
-        out[have] = stack[have] - bg.astype(np.float32)
-    for t in np.flatnonzero(~have):      # only the very first frame of a sequence
-        out[t] = stack[t] - cv2.blur(stack[t], (size, size), borderType=cv2.BORDER_REFLECT)
+    # running sum of the previous `history` frames: one add and one subtract per frame
+    # (float64 so that long blocks do not drift)
+    lo = max(0, n_past - history)
+    total = full[lo:n_past].sum(axis=0, dtype=np.float64)
+    for t in range(len(stack)):
+        i = n_past + t
+        count = i - max(0, i - history)
+        if count == 0:          # only the very first frame of a sequence: no past at all
+            out[t] = stack[t] - cv2.blur(stack[t], (size, size), borderType=cv2.BORDER_REFLECT)
+        else:
+            np.subtract(stack[t], total * (1.0 / count), out=out[t], casting="same_kind")
+        total += full[i]
+        if i - history >= 0:
+            total -= full[i - history]
     return out
