@@ -23,8 +23,9 @@ import json
 import logging
 import multiprocessing
 import os
-import tempfile
+import sys
 import time
+import uuid
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
@@ -121,7 +122,8 @@ def _sequence_suffixes() -> set[str]:
     return set(HDF5_SUFFIXES) | set(VIDEO_SUFFIXES) | {".npy"}
 
 
-def _is_image_folder(path: Path) -> bool:
+def is_image_folder(path: Path) -> bool:
+    """True when the folder holds an image file: it is one sequence, not a folder of them."""
     from irdetect.io.sources import IMAGE_SUFFIXES
     return any(p.suffix.lower() in IMAGE_SUFFIXES and p.is_file() and not p.name.startswith(".")
                for p in path.iterdir())
@@ -167,7 +169,7 @@ def expand_inputs(inputs: Iterable[str | os.PathLike]) -> list[Path]:
         else:
             raise InputError("file not found", text)
         for m in matches:
-            if m.is_dir() and not _is_image_folder(m):
+            if m.is_dir() and not is_image_folder(m):
                 members = _folder_sequences(m)
                 if not members and len(matches) == 1:
                     raise InputError("folder holds no sequence (HDF5, video, .npy or a folder "
@@ -193,7 +195,7 @@ def _folder_sequences(folder: Path) -> list[Path]:
     for p in sorted(folder.iterdir(), key=lambda q: natural_key(q.name)):
         if p.name.startswith(".") or _is_results(p):
             continue
-        if (p.is_file() and p.suffix.lower() in suffixes) or (p.is_dir() and _is_image_folder(p)):
+        if (p.is_file() and p.suffix.lower() in suffixes) or (p.is_dir() and is_image_folder(p)):
             out.append(p)
     return out
 
@@ -394,21 +396,22 @@ def run_batch(inputs: Iterable[str | os.PathLike], out_dir: str | os.PathLike,
         outcomes = imap_tasks(_process_one, [job for _, job in todo], jobs=jobs,
                               scheduler=scheduler)
         for k, value, error in outcomes:
-            i, job = todo[k]
+            i = todo[k][0]
             if error is None:
                 rows[i] = value
+                value.input, value.output = os.fspath(paths[i]), os.fspath(outputs[i])
             else:       # the executor lost the task (worker died, pool broke, cancelled)
-                rows[i] = BatchRow(job.input, job.output, status="lost",
+                rows[i] = BatchRow(os.fspath(paths[i]), os.fspath(outputs[i]), status="lost",
                                    error=_describe(error))
             if rows[i].status != "ok":
-                log.error("%s: %s", job.input, rows[i].error)
+                log.error("%s: %s", paths[i], rows[i].error)
             if bar is not None:
                 bar.update(1)
     finally:
         if bar is not None:
             bar.close()
-        for _, job in todo:
-            _remove_temporaries(Path(job.output))
+    for _, job in todo:     # every task has ended: what is left was a dead worker's
+        _remove_temporaries(Path(job.output))
     report = BatchReport(rows, out_dir / f"{SUMMARY_NAME}.csv", out_dir / f"{SUMMARY_NAME}.json",
                          executor=executor, seconds=time.perf_counter() - t0)
     write_summary(report)
@@ -419,6 +422,7 @@ def _process_one(job: Job) -> BatchRow:
     """Run one input; any error becomes a ``failed`` row (the task itself never raises)."""
     from irdetect.pipeline import process_file
 
+    _one_thread_on_dask()
     t0 = time.perf_counter()
     try:
         s = process_file(job.input, job.output, job.config, dataset=job.dataset,
@@ -429,6 +433,21 @@ def _process_one(job: Job) -> BatchRow:
     return BatchRow(job.input, job.output, frames=int(s["frames"]),
                     detections=int(s["detections"]), tracks=int(s["tracks"]),
                     seconds=float(s["seconds"]), status="ok")
+
+
+def _one_thread_on_dask() -> None:
+    """On a Dask worker, run OpenCV single-threaded: Dask runs one task per worker thread
+    and the docs start one single-threaded worker per core, so OpenCV's own pool (one thread
+    per core in every worker) would only oversubscribe the cores."""
+    distributed = sys.modules.get("distributed")     # never imported: not on a worker
+    if distributed is None:
+        return
+    try:
+        distributed.get_worker()
+    except ValueError:
+        return
+    import cv2
+    cv2.setNumThreads(1)
 
 
 def _remove_temporaries(output: Path) -> None:
@@ -487,9 +506,10 @@ def write_summary(report: BatchReport) -> tuple[Path, Path]:
 
 
 def _write_text(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    # not mkstemp: its 0600 mode would hide the summary from the rest of a shared cluster
+    tmp = path.parent / f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp"
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+        with open(tmp, "x", encoding="utf-8") as fh:
             fh.write(text)
         os.replace(tmp, path)
     finally:
@@ -538,7 +558,8 @@ def resolve_scheduler(scheduler=None):
 def _executor_name(jobs: int, scheduler, n_items: int) -> str:
     scheduler = resolve_scheduler(scheduler)
     if scheduler is not None:
-        return f"dask {getattr(scheduler, 'scheduler', None) and 'client' or scheduler}"
+        rpc = getattr(scheduler, "scheduler", None)       # a distributed.Client
+        return f"dask {rpc.address if rpc is not None else scheduler}"
     if jobs == 1 or n_items <= 1:
         return "serial"
     return f"{min(jobs, n_items)} local processes"
@@ -707,13 +728,24 @@ def _imap_dask(fn, items, scheduler):
             try:
                 yield i, future.result(), None
             except Exception as exc:     # noqa: BLE001 -- KilledWorker, task errors
+                reason = getattr(exc, "reason", None)
+                if future.cancelled() and reason:     # e.g. the scheduler went away
+                    exc = RuntimeError(f"cancelled by Dask ({reason})")
                 yield i, None, exc
             future.release()
     finally:
         if futures:
             client.cancel([f for f in futures if not f.done()])
         if own:
-            client.close()
+            _close_quietly(client)
+
+
+def _close_quietly(client) -> None:
+    """Close a client we opened, even when its scheduler is already gone."""
+    try:
+        client.close(timeout=CONNECT_TIMEOUT)
+    except Exception:     # noqa: BLE001 -- nothing to do about a client that will not close
+        log.debug("the Dask client did not close cleanly", exc_info=True)
 
 
 def _bar(total: int, progress: bool, unit: str):

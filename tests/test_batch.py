@@ -264,7 +264,10 @@ def cluster():
     import cloudpickle
 
     cloudpickle.register_pickle_by_value(sys.modules[__name__])    # workers lack tests/
-    with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
+    # worker-saturation 1.0: a worker holds only the task it runs, so a task that kills its
+    # worker takes no queued bystander down with it (Dask would count those as suspects too)
+    with dask.config.set({"distributed.scheduler.allowed-failures": 1,
+                          "distributed.scheduler.worker-saturation": 1.0}):
         lc = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                       host="127.0.0.1", dashboard_address=None)
     client = distributed.Client(lc, set_as_default=False)
@@ -282,6 +285,8 @@ def test_dask_cluster_gives_the_same_tables(seqdir, reference, cluster, tmp_path
     report = run_batch([seqdir[0]], tmp_path / "client", scheduler=client)
     assert [r.status for r in report.rows] == ["ok"] * 4
     assert _tables(tmp_path / "client") == reference[1]
+    # one OpenCV thread per Dask worker thread: no oversubscription of the cores
+    assert set(client.run(cv2.getNumThreads).values()) == {1}
     # the address from the environment, through the CLI
     monkeypatch.setenv("IRDETECT_SCHEDULER", lc.scheduler_address)
     code, stdout, _ = cli("process", str(seqdir[0] / "seq*.h5"), "--out-dir", "cli")
@@ -333,7 +338,7 @@ def test_killed_worker_mid_run_still_completes(cluster, tmp_path):
     assert [r.status for r in report.rows] == ["ok"] * 6     # the lost task was retried
     assert _tables(tmp_path / "dask") == _tables(expected_dir)
     assert not list((tmp_path / "dask").glob(".*.tmp"))     # the dead worker's temp file
-    client.wait_for_workers(2, timeout=30)
+    client.wait_for_workers(2, timeout=60)
 
 
 def _exit_or_square(x):
@@ -344,9 +349,9 @@ def _exit_or_square(x):
 
 def test_task_that_keeps_killing_workers_is_reported_lost(cluster):
     lc, client = cluster
-    client.wait_for_workers(2, timeout=30)
+    client.wait_for_workers(2, timeout=60)
     outcomes = {i: (v, e) for i, v, e in imap_tasks(_exit_or_square, [2, -1, 3],
                                                     scheduler=client)}
     assert outcomes[0] == (4, None) and outcomes[2] == (9, None)
     assert type(outcomes[1][1]).__name__ == "KilledWorker"
-    client.wait_for_workers(2, timeout=30)
+    client.wait_for_workers(2, timeout=60)

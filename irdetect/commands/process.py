@@ -16,7 +16,7 @@ import logging
 import os
 from pathlib import Path
 
-from irdetect.batch import SCHEDULER_ENV
+from irdetect.batch import SCHEDULER_ENV, is_image_folder
 from irdetect.config import load_config
 from irdetect.commands.video import add_style_arguments as add_video_arguments
 from irdetect.commands.video import render_after_process
@@ -90,7 +90,7 @@ def _is_batch(args) -> bool:
     if len(args.inputs) == 1:
         path = Path(args.inputs[0])
         pattern = not path.exists() and any(c in args.inputs[0] for c in "*?[")
-        if not pattern and (not path.is_dir() or _image_folder(path)):
+        if not pattern and (not path.is_dir() or is_image_folder(path)):
             return False
     what = (f"{len(args.inputs)} inputs" if len(args.inputs) > 1
             else "a folder of sequences or a pattern")
@@ -98,18 +98,27 @@ def _is_batch(args) -> bool:
                      + (" (-o names the output of a single input)" if args.output else ""))
 
 
-def _image_folder(path: Path) -> bool:
-    from irdetect.batch import _is_image_folder
-    return _is_image_folder(path)
-
-
 def run_batch(args, config) -> int:
     """Process every input into ``args.out_dir``; exit code 1 when any input failed."""
     from irdetect.batch import format_summary, run_batch as batch
 
+    scheduler = args.scheduler or os.environ.get(SCHEDULER_ENV)
+    if scheduler and not args.verbose:
+        _quiet_dask()
     report = batch(args.inputs, args.out_dir, config, dataset=args.dataset, force=args.force,
-                   jobs=args.jobs, scheduler=args.scheduler or os.environ.get(SCHEDULER_ENV),
+                   jobs=args.jobs, scheduler=scheduler,
                    progress=args.progress)
     if not args.quiet:
         print(format_summary(report))
     return 1 if report.failed else 0
+
+
+def _quiet_dask() -> None:
+    """Keep Dask's own log lines (lost workers and connections, tracebacks included) off
+    the terminal: the summary says what happened to each input. ``-v`` shows them."""
+    try:
+        import distributed  # noqa: F401 -- importing it sets its loggers' levels; set ours after
+    except ImportError:
+        return                  # run_batch says how to install it
+    for name in ("distributed", "distributed.client"):
+        logging.getLogger(name).setLevel(logging.CRITICAL)
