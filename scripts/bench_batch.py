@@ -26,17 +26,20 @@ ROOT = Path(__file__).resolve().parents[1]
 TABLES = ("candidates", "detections", "segments", "tracks")
 
 
-def simulate_inputs(folder: Path, n: int, size: int, frames: int) -> float:
+def simulate_inputs(folder: Path, n: int, size: int, frames: int) -> tuple[int, float]:
+    """Write the sequences missing from ``folder``; (how many were written, seconds)."""
     from irdetect.io import write_sequence
     from irdetect.simulate import simulate
 
     t0 = time.perf_counter()
+    written = 0
     for seed in range(n):
         path = folder / f"seq{seed:03d}.h5"
         if not path.exists():
             f, truth = simulate("wan2008", rng=seed, height=size, width=size, n_frames=frames)
             write_sequence(path, f, truth=truth, attrs={"frame_rate": 25.0})
-    return time.perf_counter() - t0
+            written += 1
+    return written, time.perf_counter() - t0
 
 
 def tables_of(folder: Path) -> dict:
@@ -58,6 +61,7 @@ def run(label: str, data: Path, out: Path, **executor) -> dict:
     counts = report.counts()
     per_seq = [r.seconds for r in report.rows if r.seconds is not None]
     row = {"executor": label, "sequences": len(report.rows), "ok": counts["ok"],
+           "load": os.getloadavg()[1],
            "seconds": seconds, "seq_per_s": len(report.rows) / seconds,
            "median_seq_s": float(np.median(per_seq)) if per_seq else float("nan"),
            "detections": sum(r.detections or 0 for r in report.rows)}
@@ -83,7 +87,7 @@ def main(argv=None) -> int:
         tmp = Path(tmp)
         data = args.data or tmp / "data"
         data.mkdir(parents=True, exist_ok=True)
-        sim_s = simulate_inputs(data, args.n, args.size, args.frames)
+        written, sim_s = simulate_inputs(data, args.n, args.size, args.frames)
         mb = sum(p.stat().st_size for p in data.glob("*.h5")) / 1e6
         print(f"{args.n} sequences {args.size}x{args.size}x{args.frames} ({mb:.0f} MB) "
               f"simulated in {sim_s:.1f} s", flush=True)
@@ -119,23 +123,24 @@ def main(argv=None) -> int:
         "default configuration, each executor writing into its own folder.",
         "",
         "| executor | sequences | ok | wall s | sequences/s | median s per sequence | "
-        "detections | tables identical to serial |",
-        "|---|---:|---:|---:|---:|---:|---:|---|",
+        "detections | tables identical to serial | machine load (5 min avg) at end |",
+        "|---|---:|---:|---:|---:|---:|---:|---|---:|",
     ]
     for r in rows:
         lines.append(f"| {r['executor']} | {r['sequences']} | {r['ok']} | {r['seconds']:.1f} | "
                      f"{r['seq_per_s']:.2f} | {r['median_seq_s']:.2f} | {r['detections']} | "
-                     f"{'yes' if same[r['executor']] else 'NO'} |")
+                     f"{'yes' if same[r['executor']] else 'NO'} | {r['load']:.1f} |")
     lines += [
         "",
         f"- Dask LocalCluster start-up (not in the wall time above): {startup:.1f} s.",
         f"- A re-run over the finished serial folder skipped all {args.n} inputs in "
         f"{resume_s:.2f} s (fingerprints + attribute checks).",
-        f"- Simulating the inputs took {sim_s:.1f} s (not timed above)."
-        if not args.data else "- Inputs reused from a kept folder.",
+        f"- Simulating {written} of the inputs took {sim_s:.1f} s (not timed above)."
+        if written else "- Inputs reused from a kept folder (`--data`).",
         f"- Machine: {platform.machine()}, {os.cpu_count()} cores, Python "
         f"{platform.python_version()}, dask {dask.__version__}; the cores were shared with "
-        "other work while this ran, so the timings are noisy.",
+        "other work while this ran (a load above 2 means the two cores were oversubscribed "
+        "by other processes), so the timings are noisy.",
         "- Median seconds per sequence is the pipeline's own time inside a worker; with two "
         "workers on two cores it grows because the workers compete for the cores and the "
         "disk.",

@@ -248,6 +248,17 @@ def test_map_tasks_keeps_order_and_names_the_failing_item():
         map_tasks(abs, [1], jobs=0)
 
 
+def test_dead_local_process_is_reported_not_raised():
+    from concurrent.futures.process import BrokenProcessPool
+
+    outcomes = {i: (v, e) for i, v, e in imap_tasks(_exit_or_square, [2, -1, 3], jobs=2)}
+    assert sorted(outcomes) == [0, 1, 2]
+    assert isinstance(outcomes[1][1], BrokenProcessPool)
+    for i, x in ((0, 2), (2, 3)):       # done before the pool broke, or lost with it
+        value, error = outcomes[i]
+        assert value == x * x if error is None else isinstance(error, BrokenProcessPool)
+
+
 def test_missing_distributed_gives_an_install_hint(monkeypatch):
     monkeypatch.setitem(sys.modules, "distributed", None)     # import fails as if absent
     with pytest.raises(InputError, match=r"pip install 'irdetect\[distributed\]'"):
