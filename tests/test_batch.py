@@ -298,6 +298,10 @@ def test_dask_cluster_gives_the_same_tables(seqdir, reference, cluster, tmp_path
     assert _tables(tmp_path / "client") == reference[1]
     # one OpenCV thread per Dask worker thread: no oversubscription of the cores
     assert set(client.run(cv2.getNumThreads).values()) == {1}
+    # a scheduler file (dask scheduler --scheduler-file) names the cluster as well
+    sched = tmp_path / "sched.json"
+    sched.write_text(json.dumps({"address": lc.scheduler_address}))
+    assert map_tasks(abs, [-2, 3, -5], scheduler=str(sched)) == [2, 3, 5]
     # the address from the environment, through the CLI
     monkeypatch.setenv("IRDETECT_SCHEDULER", lc.scheduler_address)
     code, stdout, _ = cli("process", str(seqdir[0] / "seq*.h5"), "--out-dir", "cli")
