@@ -107,3 +107,13 @@ def test_messages_name_the_problem_and_the_file(cli, tmp_path):
     for name, (problem, file_name) in expect.items():
         _, _, err = cli(*cases[name])
         assert problem in err and file_name in err, f"{name}: {err}"
+
+
+def test_simulate_dispatches_on_the_preset_kind(cli):
+    code, _, err = cli("simulate", "h.h5", "--scenario", "harbour", "--frames", "30",
+                       "--seed", "1")
+    assert code == 0, err
+    code, out, _ = cli("info", "h.h5")
+    assert "30 frames of 320x240" in out
+    code, _, err = cli("simulate", "z.h5", "--scenario", "zhang2010")
+    assert code == 2 and "simulate-scans" in err

@@ -45,7 +45,7 @@ def test_frames_and_ship_regions():
 
 
 def test_bad_preset():
-    with pytest.raises(InputError, match="unknown harbour preset"):
+    with pytest.raises(InputError, match="unknown harbour scenario"):
         load_harbour("nope")
     with pytest.raises(InputError, match="not a harbour"):
         load_harbour("wan2008")

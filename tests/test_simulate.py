@@ -50,7 +50,7 @@ def test_uint16_and_clutter_and_seed():
 
 
 def test_bad_scenarios_are_refused():
-    with pytest.raises(InputError, match="unknown scenario"):
+    with pytest.raises(InputError, match="unknown sequence scenario"):
         load_scenario("nope")
     with pytest.raises(InputError, match="unknown config key scenario.colour"):
         load_scenario("wan2008", colour=1)

@@ -19,9 +19,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import tomllib
 from dataclasses import dataclass
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -29,7 +27,7 @@ import numpy as np
 from irdetect import tables
 from irdetect.config import from_dict
 from irdetect.errors import InputError
-from irdetect.simulate.sequence import PRESETS
+from irdetect.simulate.presets import read_preset
 
 
 @dataclass(frozen=True)
@@ -83,19 +81,7 @@ class HarbourScenario:
 
 def load_harbour(name: str | os.PathLike = "harbour", **overrides) -> HarbourScenario:
     """Read a harbour preset (``data/presets/<name>.toml`` or a TOML path) with overrides."""
-    path = Path(name)
-    if path.suffix != ".toml":
-        path = PRESETS / f"{name}.toml"
-    if not path.is_file():
-        raise InputError("unknown harbour preset", name)
-    try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"not a valid TOML file ({exc})", path) from None
-    data.pop("description", None)
-    if data.pop("kind", "harbour") != "harbour":
-        raise InputError("this preset is not a harbour scenario", path)
+    data, path = read_preset(name, "harbour")
     ships = data.pop("ships", [])
     if not isinstance(ships, list):
         raise InputError("ships must be an array of tables", path)

@@ -20,9 +20,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import tomllib
 from dataclasses import dataclass
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -30,8 +28,8 @@ import numpy as np
 from irdetect import tables
 from irdetect.config import from_dict
 from irdetect.errors import InputError
+from irdetect.simulate.presets import read_preset
 
-PRESETS = Path(__file__).resolve().parents[2] / "data" / "presets"
 _DTYPES = {"uint8": (np.uint8, 255.0), "uint16": (np.uint16, 65535.0), "float32": (np.float32, None)}
 
 
@@ -76,20 +74,7 @@ def load_scenario(name: str | os.PathLike = "wan2008", **overrides) -> SequenceS
     InputError
         Unknown preset, unreadable TOML, unknown key or value of the wrong type.
     """
-    path = Path(name)
-    if path.suffix != ".toml":
-        path = PRESETS / f"{name}.toml"
-    if not path.is_file():
-        known = sorted(p.stem for p in PRESETS.glob("*.toml"))
-        raise InputError(f"unknown scenario (presets: {', '.join(known)})", name)
-    try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"not a valid TOML file ({exc})", path) from None
-    data.pop("description", None)
-    if data.pop("kind", "sequence") != "sequence":
-        raise InputError("this preset is not an image-sequence scenario", path)
+    data, path = read_preset(name, "sequence")
     data.update({k: v for k, v in overrides.items() if v is not None})
     scenario = from_dict(SequenceScenario, data, where="scenario", path=path)
     _validate(scenario, path)
