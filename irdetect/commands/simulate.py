@@ -49,7 +49,10 @@ def run(args) -> int:
             raise InputError(f"--size must look like 320x240, got {args.size!r}")
         overrides.update(width=int(w), height=int(h))
     rng = np.random.default_rng(args.seed)
-    if preset_kind(args.scenario) == "harbour":
+    kind = preset_kind(args.scenario)
+    if kind == "scans":
+        raise InputError("a radar scans scenario: use irdetect simulate-scans", args.scenario)
+    if kind == "harbour":
         if any(overrides.get(k) is not None for k in ("snr", "n_targets", "dtype")):
             raise InputError("--snr, --targets and --dtype do not apply to the harbour scene",
                              args.scenario)
