@@ -18,6 +18,10 @@ from irdetect.tables import SEGMENT, empty
 
 RESOLVE = ("all", "unique", "cost")
 
+#: score units worth the full ``max_deviation`` in the "cost" resolution: the cost of a
+#: segment is deviation / max_deviation - mean score / SCORE_SCALE
+SCORE_SCALE = 2.0
+
 
 @dataclass(frozen=True)
 class Correlation:
@@ -51,7 +55,7 @@ def motion_bound(step: int, max_speed: float, tolerance: float) -> float:
 def correlate(points1, points2, points3, step: int, *, max_speed: float = 1.5,
               tolerance: float = 2.0, constant_velocity: bool = True,
               max_deviation: float = 5.0, resolve: str = "cost",
-              min_score: float = 4.5) -> Correlation:
+              min_score: float = 5.0) -> Correlation:
     """Find 3-point segments through the fused points of 3 consecutive combined frames.
 
     Parameters
@@ -78,7 +82,9 @@ def correlate(points1, points2, points3, step: int, *, max_speed: float = 1.5,
         correspondence is unique both ways: keep a segment only when its first point
         starts exactly one forward segment and its last point exactly one backward
         segment. ``cost`` (beyond the paper): one-to-one, taking segments greedily by
-        increasing deviation |p1 - 2 p2 + p3| so no point serves twice in one role.
+        increasing cost |p1 - 2 p2 + p3| / max_deviation - (mean point score) / 2, so
+        no point serves twice in one role and a strong straight segment wins over a
+        weak noise point that happens to lie a little straighter.
 
     Returns
     -------
@@ -133,7 +139,8 @@ def correlate(points1, points2, points3, step: int, *, max_speed: float = 1.5,
     if resolve == "unique":
         index, deviation = _unique(index, deviation)
     elif resolve == "cost":
-        index, deviation = _greedy(index, deviation)
+        mean_score = sum(scores[i][index[:, i]] for i in range(3)) / 3.0 if len(index) else deviation
+        index, deviation = _greedy(index, deviation / max_deviation - mean_score / SCORE_SCALE)
     return Correlation(segments=_segments(pts, scores, index, int(step)), index=index)
 
 

@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from irdetect.detect import DirectionalDetection
 from irdetect.tables import CANDIDATE, empty
 
 
 def fuse(detection: DirectionalDetection, combined, *, gap: int = 1, d_min: float = 0.5,
-         min_members: int = 1) -> np.ndarray:
+         min_members: int = 1, peak_radius: int = 5) -> np.ndarray:
     """Group candidate pixels and fuse each group into one point.
 
     Parameters
@@ -34,6 +35,10 @@ def fuse(detection: DirectionalDetection, combined, *, gap: int = 1, d_min: floa
         division by zero.
     min_members : int
         Groups with fewer member pixels are dropped (1 keeps every group).
+    peak_radius : int
+        Beyond the paper (0 = off): split a group around its local maxima of the CFAR
+        response that are at least ``peak_radius`` px apart (each pixel goes to the
+        nearest maximum), so two targets passing close by stay two points.
 
     Returns
     -------
@@ -78,7 +83,9 @@ def fuse(detection: DirectionalDetection, combined, *, gap: int = 1, d_min: floa
         raise ValueError(f"d_min must be a positive number, got {d_min!r}")
     if int(min_members) != min_members or min_members < 1:
         raise ValueError(f"min_members must be an integer >= 1, got {min_members!r}")
-    return _fuse(detection, values, int(gap), float(d_min), int(min_members))
+    if int(peak_radius) != peak_radius or peak_radius < 0:
+        raise ValueError(f"peak_radius must be an integer >= 0, got {peak_radius!r}")
+    return _fuse(detection, values, int(gap), float(d_min), int(min_members), int(peak_radius))
 
 
 def group_labels(mask: np.ndarray, gap: int) -> tuple[int, np.ndarray]:
@@ -92,13 +99,44 @@ def group_labels(mask: np.ndarray, gap: int) -> tuple[int, np.ndarray]:
     return n - 1, np.where(mask, labels, 0)
 
 
+#: a local maximum splits its group only when its response reaches this fraction of the
+#: group's largest (weaker bumps on a bright blob's flank are not a second target)
+PEAK_RATIO = 0.5
+
+
+def _peak_labels(det: DirectionalDetection, labels, ys, xs, radius: int) -> np.ndarray:
+    """Label of the nearest strong local maximum (plateaus merged) for each candidate pixel."""
+    resp = np.where(det.mask, det.response, np.float32(-np.inf)).astype(np.float32)
+    kern = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
+    peaks = det.mask & (resp >= cv2.dilate(resp, kern))
+    n, plab = cv2.connectedComponents(peaks.astype(np.uint8), connectivity=8)
+    py, px = np.nonzero(peaks)
+    pl = plab[py, px] - 1
+    cnt = np.bincount(pl, minlength=n - 1)
+    centres = np.column_stack([np.bincount(pl, px, n - 1) / cnt, np.bincount(pl, py, n - 1) / cnt])
+    # each peak's response and its group's largest response
+    peak_resp = np.full(n - 1, -np.inf)
+    np.maximum.at(peak_resp, pl, resp[py, px])
+    group = np.zeros(n - 1, np.int64)
+    group[pl] = labels[py, px]
+    group_max = np.full(int(labels.max()) + 1, -np.inf)
+    np.maximum.at(group_max, group, peak_resp)
+    strong = peak_resp >= PEAK_RATIO * group_max[group]
+    _, idx = cKDTree(centres[strong]).query(np.column_stack([xs, ys]))
+    return np.flatnonzero(strong)[idx]
+
+
 def _fuse(det: DirectionalDetection, values: np.ndarray, gap: int, d_min: float,
-          min_members: int) -> np.ndarray:
+          min_members: int, peak_radius: int = 0) -> np.ndarray:
     ys, xs = np.nonzero(det.mask)
     if xs.size == 0:
         return empty(CANDIDATE)
     n, labels = group_labels(det.mask, gap)
     lab = labels[ys, xs]
+    if peak_radius > 0:
+        # a pixel's group is (its connected group, its nearest response maximum)
+        peak = _peak_labels(det, labels, ys, xs, peak_radius)
+        lab = lab.astype(np.int64) * (int(peak.max()) + 1) + peak
     # compact labels (dilation may create label ids without members)
     uniq, lab = np.unique(lab, return_inverse=True)
     g = len(uniq)

@@ -252,8 +252,10 @@ def main(argv=None) -> int:
     say("## 3. Choices beyond the paper (wan2008, full pipeline, one option changed)")
     say()
     variants = [
-        ("default (dp merit, decay 0.95, k 3.5, const. velocity, resolve=cost, "
-         "min_score 4.5)", {}),
+        ("default (dp merit, decay 0.95, k 3.5, peak split 5 px, const. velocity, "
+         "resolve=cost, min_score 5)", {}),
+        ("no peak split (the paper's groups only)", dict(fuse__peak_radius=0)),
+        ("min_score 4.5", dict(correlate__min_score=4.5)),
         ("paper's max projection, window 5 (k 3.5)",
          dict(combine__projection="max", detect__window=5)),
         ("mean projection, window 9, 8 directions, smooth 0.6",
@@ -271,6 +273,7 @@ def main(argv=None) -> int:
         ("dp_radius 2 (follows up to 2 px/frame)", dict(combine__dp_radius=2)),
         ("k 3.0", dict(detect__k=3.0)),
         ("k 4.0", dict(detect__k=4.0)),
+        ("k 4.0, min_score 4.5", dict(detect__k=4.0, correlate__min_score=4.5)),
     ]
     say("| variant | Pd SNR 2 | false/Mpx-win SNR 2 | Pd SNR 3 | false/Mpx-win SNR 3 |")
     say("|---|---|---|---|---|")

@@ -30,7 +30,7 @@ def test_weights_favour_members_near_the_centroid():
     # point towards the dense side, away from the plain centroid
     mask = np.zeros((5, 10), bool)
     mask[2, [0, 1, 2, 6]] = True
-    out = fuse(_det(mask), mask.astype(np.float32), gap=3)
+    out = fuse(_det(mask), mask.astype(np.float32), gap=3, peak_radius=0)
     d = np.abs(np.array([0, 1, 2, 6]) - 2.25)
     beta = (1 / np.maximum(d, 0.5)) / (1 / np.maximum(d, 0.5)).sum()
     assert out["x"][0] == pytest.approx((beta * [0, 1, 2, 6]).sum())
@@ -45,8 +45,27 @@ def test_gap_joins_broken_streaks_and_separates_targets():
     n0, _ = group_labels(mask, 0)
     n1, labels = group_labels(mask, 1)
     assert n0 == 3 and labels[5, 2] == labels[5, 13] != labels[20, 21]
-    assert len(fuse(_det(mask), mask, gap=1)) == 2
-    assert len(fuse(_det(mask), mask, gap=1, min_members=4)) == 1
+    assert len(fuse(_det(mask), mask, gap=1, peak_radius=0)) == 2
+    assert len(fuse(_det(mask), mask, gap=1, min_members=4, peak_radius=0)) == 1
+
+
+def test_peak_split_keeps_two_close_targets_apart():
+    # two bright blobs 6 px apart joined by a weak bridge: one group, two targets
+    yy, xx = np.mgrid[0:20, 0:30]
+    resp = (8 * np.exp(-((xx - 12) ** 2 + (yy - 10) ** 2) / 4.0)
+            + 7 * np.exp(-((xx - 18) ** 2 + (yy - 10) ** 2) / 4.0)).astype(np.float32)
+    mask = resp > 1.0
+    det = DirectionalDetection(mask, np.where(mask, 0, -1).astype(np.int8), resp)
+    assert len(fuse(det, resp, peak_radius=0)) == 1
+    out = fuse(det, resp, peak_radius=2)
+    assert len(out) == 2
+    assert sorted(np.round(out["x"]).tolist()) == [12.0, 18.0]
+    # a weak bump on the flank of a bright blob is not a second target
+    resp2 = (8 * np.exp(-((xx - 12) ** 2 + (yy - 10) ** 2) / 4.0)
+             + 2.5 * np.exp(-((xx - 16) ** 2 + (yy - 10) ** 2) / 2.0)).astype(np.float32)
+    mask2 = resp2 > 1.0
+    det2 = DirectionalDetection(mask2, np.where(mask2, 0, -1).astype(np.int8), resp2)
+    assert len(fuse(det2, resp2, peak_radius=2)) == 1
 
 
 def test_groups_from_detection_and_empty_result():
@@ -63,7 +82,8 @@ def test_groups_from_detection_and_empty_result():
 
 
 @pytest.mark.parametrize("kwargs, name", [({"gap": -1}, "gap"), ({"d_min": 0}, "d_min"),
-                                          ({"min_members": 0}, "min_members")])
+                                          ({"min_members": 0}, "min_members"),
+                                          ({"peak_radius": -1}, "peak_radius")])
 def test_bad_parameters_are_named(kwargs, name):
     mask = np.zeros((5, 5), bool)
     with pytest.raises(ValueError, match=name):
