@@ -69,6 +69,7 @@ class FuseConfig:
     gap: int = 1
     d_min: float = 0.5
     min_members: int = 1
+    peak_radius: int = 5
 
 
 @dataclass(frozen=True)
@@ -80,7 +81,7 @@ class CorrelateConfig:
     constant_velocity: bool = True
     max_deviation: float = 5.0
     resolve: str = "cost"
-    min_score: float = 4.5
+    min_score: float = 5.0
 
 
 # --- track initiation (zhang2010, liang2015; issues 4, 5) -----------------------------
