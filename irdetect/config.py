@@ -92,6 +92,30 @@ class InitiateConfig:
     docs/initiation.md). Units: pixels, frames."""
 
     method: str = "hough-sc"
+    n_theta: int = 90
+    rho_step: float = 2.0
+    tile: float = 0.0
+    vote_fraction: float = 0.6
+    parallel_fraction: float = 0.8
+    q1: float = 0.25
+    q2: float = 0.65
+    sigma: float = 1.0
+    sigma_range: float = 0.0
+    sigma_azimuth: float = 0.0
+    radius_rho: float = 3.0
+    radius_theta: float = 4.0
+    squash: float = 1.25
+    accept_ratio: float = 0.5
+    reject_ratio: float = 0.15
+    merge_peaks: bool = False
+    nms_size: int = 5
+    verify: bool = True
+    gate: float = 3.0
+    v_min: float = 0.0
+    v_max: float = 0.0
+    min_hits: float = 0.5
+    confirm_m: int = 3
+    confirm_n: int = 4
 
 
 # --- frame-by-frame tracker (cheng; issue 6) -------------------------------------------
@@ -141,30 +165,6 @@ class TrackConfig:
 # --------------------------------------------------------------------------------------
 
 @dataclass(frozen=True)
-    n_theta: int = 90
-    rho_step: float = 2.0
-    tile: float = 0.0
-    vote_fraction: float = 0.6
-    parallel_fraction: float = 0.8
-    q1: float = 0.25
-    q2: float = 0.65
-    sigma: float = 1.0
-    sigma_range: float = 0.0
-    sigma_azimuth: float = 0.0
-    radius_rho: float = 3.0
-    radius_theta: float = 4.0
-    squash: float = 1.25
-    accept_ratio: float = 0.5
-    reject_ratio: float = 0.15
-    merge_peaks: bool = False
-    nms_size: int = 5
-    verify: bool = True
-    gate: float = 3.0
-    v_min: float = 0.0
-    v_max: float = 0.0
-    min_hits: float = 0.5
-    confirm_m: int = 3
-    confirm_n: int = 4
 class ProcessConfig:
     """Everything ``irdetect process`` needs, one field per stage."""
 
