@@ -36,6 +36,9 @@ class SuppressConfig:
     size: int = 9
     guard: int = 1
     history: int = 12
+    gap: int = 8
+    tolerance: int = 1
+    fixed_pattern: bool = True
 
 
 @dataclass(frozen=True)

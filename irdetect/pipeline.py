@@ -29,7 +29,7 @@ from irdetect.correlate import correlate
 from irdetect.detect import detect
 from irdetect.errors import InputError
 from irdetect.fuse import fuse
-from irdetect.suppress import suppress
+from irdetect.suppress import past_frames, suppress
 
 log = logging.getLogger(__name__)
 
@@ -81,7 +81,7 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
                          f"(3 combined frames of {cc.length} frames, step {cc.step})")
     starts = window_starts(n_frames, length=cc.length, step=cc.step)
     sup = asdict(config.suppress)
-    history = sup["history"] if sup["method"] == "temporal" else 0
+    history = past_frames(**sup)
     reader = _Reader(frames, history)
     pending: deque = deque()
     segment_id = 0
