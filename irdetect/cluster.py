@@ -24,7 +24,8 @@ class Clusters:
     potential : ndarray of shape (K,)
         Potential of each centre when it was accepted (the first is the highest).
     labels : ndarray of shape (N,) of int
-        Nearest centre of every point (scaled distance), -1 when there is no centre.
+        Nearest centre of every point (scaled distance), -1 when there is no centre (or
+        with ``labels=False``).
     """
 
     centres: np.ndarray
@@ -35,7 +36,7 @@ class Clusters:
 
 def subtractive_cluster(x, *, radii=0.5, squash: float = 1.25, accept_ratio: float = 0.5,
                         reject_ratio: float = 0.15, bounds=None, weights=None,
-                        wrap_lines: bool = False) -> Clusters:
+                        wrap_lines: bool = False, groups=None, labels: bool = True) -> Clusters:
     """Find cluster centres by subtractive clustering, as MATLAB ``subclust`` does.
 
     Every point gets the potential P_i = sum_j w_j exp(-4 |x_i - x_j|^2 / r_a^2) (Zhang et
@@ -73,6 +74,13 @@ def subtractive_cluster(x, *, radii=0.5, squash: float = 1.25, accept_ratio: flo
         line written as (-rho, theta -/+ pi), so lines near theta = 0 and theta = pi
         cluster together. Requires bounds symmetric in rho and spanning pi in theta
         (given or derived: rho in [-max|rho|, max|rho|], theta in [0, pi]).
+    groups : array_like of int, shape (N,), optional
+        Independent problems solved together (e.g. the Hough candidates of every spatial
+        tile): points of different groups never interact, each group has its own P*, and
+        the result is what separate calls per group would give (centres of all groups
+        together, in the order they were accepted). Default: one group.
+    labels : bool
+        Compute ``Clusters.labels`` (False leaves them -1, saving a nearest-centre search).
 
     Returns
     -------
@@ -109,6 +117,9 @@ def subtractive_cluster(x, *, radii=0.5, squash: float = 1.25, accept_ratio: flo
     w = np.ones(n) if weights is None else np.asarray(weights, float).ravel()
     if w.shape != (n,) or not np.isfinite(w).all() or (w < 0).any():
         raise ValueError("weights must be N finite values >= 0")
+    g = np.zeros(n, np.int64) if groups is None else np.asarray(groups).ravel()
+    if g.shape != (n,) or (n and not np.issubdtype(g.dtype, np.integer)):
+        raise ValueError("groups must be N integers")
     if wrap_lines and d < 2:
         raise ValueError("wrap_lines needs columns (rho, theta)")
     if n == 0:
@@ -132,7 +143,7 @@ def subtractive_cluster(x, *, radii=0.5, squash: float = 1.25, accept_ratio: flo
         mirror = u.copy()
         mirror[:, 0] = 1.0 - u[:, 0]
         mirror[:, 1] = u[:, 1] - np.pi / span[1]
-    return _subclust(u, x, r, squash, accept_ratio, reject_ratio, w, mirror)
+    return _subclust(u, x, r, squash, accept_ratio, reject_ratio, w, mirror, g, labels)
 
 
 def _sq_dist(u, v, scale, mirror_v=None):
@@ -152,12 +163,27 @@ def _sq_dist(u, v, scale, mirror_v=None):
     return dd
 
 
-def _subclust(u, x, r, squash, accept, reject, w, mirror, cutoff: float = 3.0):
-    """Kernel on unit-box data u. Potentials use only pairs within ``cutoff`` radii
-    (exp(-4 * 3^2) < 1e-15 of a point's own share), found with a KD-tree, so thousands of
-    Hough cells cluster in well under a second."""
+def _csr_positions(starts, counts):
+    """Concatenated ranges [starts[i], starts[i] + counts[i])."""
+    return np.repeat(starts - np.cumsum(np.r_[0, counts[:-1]]), counts) + np.arange(counts.sum())
+
+
+def _subclust(u, x, r, squash, accept, reject, w, mirror, groups, want_labels=True,
+              cutoff: float = 2.0):
+    """Kernel on unit-box data u, every group at once.
+
+    Only pairs within ``cutoff`` radii count (exp(-4 * 2^2) ~ 1e-7 of a point's own
+    share; the subtraction reaches ``cutoff`` r_b). One KD-tree over the points, with the group as an extra coordinate far
+    beyond the cut-off so groups never interact, gives the neighbour graph once; the
+    centre search then runs all groups in lock step: each pass takes the highest
+    remaining potential of every group still searching, so the number of passes is
+    the largest number of centres of one group, not the number of groups.
+    """
     from scipy.spatial import cKDTree
 
+    n = len(u)
+    reach = cutoff * max(1.0, squash)           # subtraction reaches squash radii further
+    sep = np.asarray(groups, float)[:, None] * (10.0 * reach + 10.0)
     z = u / r                                   # unit radius of influence
     views = [z]
     if mirror is not None:
@@ -165,51 +191,96 @@ def _subclust(u, x, r, squash, accept, reject, w, mirror, cutoff: float = 3.0):
         zp = zm.copy()
         zp[:, 1] = 2 * z[:, 1] - zm[:, 1]
         views += [zm, zp]
-    tree = cKDTree(z)
-    # pairs (i, j) with |z_i - view(z_j)| <= cutoff; a pair found through several views
+    tree = cKDTree(np.hstack([z, sep]))
+    # pairs (i, j) with |z_i - view(z_j)| <= reach; a pair found through several views
     # keeps its smallest distance (the line-wrap rule)
     ii, jj, dd = [], [], []
     for v in views:
-        sd = tree.sparse_distance_matrix(cKDTree(v), cutoff, output_type="ndarray")
+        sd = tree.sparse_distance_matrix(cKDTree(np.hstack([v, sep])), reach,
+                                         output_type="ndarray")
         ii.append(sd["i"]), jj.append(sd["j"]), dd.append(sd["v"])
     ii, jj, dd = np.concatenate(ii), np.concatenate(jj), np.concatenate(dd)
-    key = ii.astype(np.int64) * len(z) + jj
-    order = np.lexsort((dd, key))
-    first = np.r_[True, key[order][1:] != key[order][:-1]]
-    ii, jj, dd = ii[order][first], jj[order][first], dd[order][first]
-    pot = np.bincount(ii, weights=np.exp(-4.0 * dd ** 2) * w[jj], minlength=len(z))
-    ref = pot.max()
-    centres: list[int] = []
-    cpot: list[float] = []
-    rb = squash * r
-    while ref > 0:
-        k = int(np.argmax(pot))
-        pk = pot[k]
-        if pk <= 0:
-            break
-        ratio = pk / ref
-        if ratio > accept:
-            pass
-        elif ratio > reject:
-            dmin = np.sqrt(_sq_dist(u[k:k + 1], u[centres], r,
-                                    None if mirror is None else mirror[centres]).min())
-            if dmin + ratio < 1.0:
-                pot[k] = 0.0
-                continue
-        else:
-            break
-        centres.append(k)
-        cpot.append(pk)
-        # only points within cutoff * squash radii of the centre (any view) change
-        near = np.unique(np.concatenate(
-            [np.asarray(tree.query_ball_point(v[k], cutoff * squash), np.int64)
-             for v in views]))
-        dk = _sq_dist(u[near], u[k:k + 1], rb, None if mirror is None else mirror[k:k + 1])[:, 0]
-        pot[near] = np.maximum(pot[near] - pk * np.exp(-4.0 * dk), 0.0)
-    idx = np.array(centres, dtype=np.int64)
-    if idx.size:
-        dc = _sq_dist(u, u[idx], r, None if mirror is None else mirror[idx])
-        labels = np.argmin(dc, axis=1)
+    if len(views) > 1 and (mirror[0, 1] - u[0, 1]) ** 2 / r[1] ** 2 < (2 * reach) ** 2:
+        # a theta range so short (against the radius) that one pair can be near through
+        # two views: keep each pair's smallest distance
+        key = ii.astype(np.int64) * n + jj
+        order = np.lexsort((dd, key))
+        first = np.r_[True, key[order][1:] != key[order][:-1]]
+        ii, jj, dd = ii[order][first], jj[order][first], dd[order][first]
     else:
-        labels = np.full(len(u), -1, np.int64)
-    return Clusters(x[idx], idx, np.array(cpot), labels)
+        order = np.argsort(ii, kind="stable")
+        ii, jj, dd = ii[order], jj[order], dd[order]
+    # self pairs (distance 0) are in the graph whatever sparse_distance_matrix does
+    self_missing = np.setdiff1d(np.arange(n), ii[ii == jj])
+    if self_missing.size:
+        ii = np.r_[ii, self_missing]
+        jj = np.r_[jj, self_missing]
+        dd = np.r_[dd, np.zeros(self_missing.size)]
+        o = np.argsort(ii, kind="stable")
+        ii, jj, dd = ii[o], jj[o], dd[o]
+    near = dd <= cutoff
+    pot = np.bincount(ii[near], weights=np.exp(-4.0 * dd[near] ** 2) * w[jj[near]], minlength=n)
+    # neighbour lists of every point (CSR over ii) for the subtraction: -4 d^2 / squash^2
+    ptr = np.searchsorted(ii, np.arange(n + 1))
+    sub = np.exp(-4.0 * (dd / squash) ** 2)
+    g_ids, g_of = np.unique(groups, return_inverse=True)
+    G = g_ids.size
+    by_group = np.argsort(g_of, kind="stable")
+    starts = np.searchsorted(g_of[by_group], np.arange(G))
+    ref = np.maximum.reduceat(pot[by_group], starts)
+    searching = ref > 0
+    centres: list[np.ndarray] = []
+    cpot: list[np.ndarray] = []
+    is_centre = np.zeros(n, bool)
+    while searching.any():
+        # highest potential of every group (first index on ties, as np.argmax)
+        ps = pot[by_group]
+        gmax = np.maximum.reduceat(ps, starts)
+        hit = np.flatnonzero(ps == gmax[g_of[by_group]])
+        gg, first_hit = np.unique(g_of[by_group][hit], return_index=True)
+        k = by_group[hit[first_hit]]
+        live = searching[gg]
+        gg, k = gg[live], k[live]
+        pk = pot[k]
+        ratio = np.where(ref[gg] > 0, pk / np.where(ref[gg] > 0, ref[gg], 1.0), 0.0)
+        stop = (pk <= 0) | (ratio <= reject)
+        searching[gg[stop]] = False
+        grey = ~stop & (ratio <= accept)
+        take = ~stop & ~grey
+        if grey.any():
+            # distance to the nearest centre of the group: centres beyond the graph's
+            # reach (>= 3 radii) cannot fail dmin + ratio >= 1, so the graph suffices
+            kg = k[grey]
+            cg = ptr[kg + 1] - ptr[kg]
+            pos = _csr_positions(ptr[kg], cg)
+            owner = np.repeat(np.arange(kg.size), cg)
+            hit = is_centre[jj[pos]]
+            dmin = np.full(kg.size, np.inf)
+            np.minimum.at(dmin, owner[hit], dd[pos[hit]])
+            ok = dmin + ratio[grey] >= 1.0
+            pot[kg[~ok]] = 0.0
+            take[np.flatnonzero(grey)[ok]] = True
+        if not take.any():
+            continue
+        kt, pt = k[take], pk[take]
+        centres.append(kt)
+        cpot.append(pt)
+        is_centre[kt] = True
+        # subtract P_c exp(-4 |x - c|^2 / r_b^2) around every new centre (groups disjoint)
+        cnt = ptr[kt + 1] - ptr[kt]
+        pos = _csr_positions(ptr[kt], cnt)
+        js = jj[pos]
+        pot[js] = np.maximum(pot[js] - np.repeat(pt, cnt) * sub[pos], 0.0)
+        pot[kt] = 0.0
+    idx = np.concatenate(centres) if centres else np.zeros(0, np.int64)
+    pots = np.concatenate(cpot) if cpot else np.zeros(0)
+    labels = np.full(n, -1, np.int64)
+    if idx.size and want_labels:
+        # nearest centre of the same group (scaled distance, wrap-aware)
+        ctree = cKDTree(np.hstack([z[idx], sep[idx]]))
+        best = np.full(n, np.inf)
+        for v in views:
+            d, j = ctree.query(np.hstack([v, sep]))
+            better = d < best
+            best[better], labels[better] = d[better], j[better]
+    return Clusters(x[idx], idx, pots, labels)

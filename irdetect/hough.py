@@ -295,36 +295,67 @@ def nms_peaks(acc: np.ndarray, *, size: int = 3, threshold: float = 0.0) -> np.n
 
     Parameters
     ----------
-    acc : ndarray of shape (n_rho, n_theta)
+    acc : ndarray of shape (n_rho, n_theta) or (G, n_rho, n_theta)
+        One accumulator, or G independent ones (tiles) suppressed together.
     size : int
         Neighbourhood side in cells (odd >= 1).
 
     Returns
     -------
-    ndarray of shape (K, 2) of int
-        (rho index, theta index) of the kept peaks, strongest first.
+    ndarray of shape (K, 2) of int, or (K, 3) for G accumulators
+        (rho index, theta index), preceded by the accumulator index for G accumulators,
+        of the kept peaks, strongest first (ties: lower flat index first).
+
+    Notes
+    -----
+    Computed in parallel rounds, not one peak at a time: a live cell whose rank is the
+    largest among the live cells of its neighbourhood is kept by the greedy order too
+    (nothing stronger near it can be kept before it, and the neighbourhood relation is
+    symmetric, wrap included), so every round keeps all such cells at once and clears
+    their neighbourhoods. The result is the greedy one exactly; the number of rounds is
+    small (a few per peak cluster), each a maximum filter over the accumulator.
     """
-    if size < 1:
-        raise ValueError(f"size must be >= 1, got {size}")
-    a = np.array(acc, float)
-    n_rho, n_theta = a.shape
+    from scipy.ndimage import maximum_filter
+
+    if int(size) != size or size < 1:
+        raise ValueError(f"size must be a positive integer, got {size}")
+    a = np.asarray(acc, float)
+    single = a.ndim == 2
+    if single:
+        a = a[None]
+    if a.ndim != 3:
+        raise ValueError(f"acc must have 2 or 3 dimensions, got shape {np.shape(acc)}")
+    G, n_rho, n_theta = a.shape
     flat = np.flatnonzero(a > threshold)
     order = flat[np.argsort(-a.ravel()[flat], kind="stable")]
-    alive = np.zeros(a.size, bool)
-    alive[order] = True
+    rank = np.zeros(a.size, np.int64)
+    rank[order] = np.arange(order.size, 0, -1)       # strongest: largest rank
+    rank = rank.reshape(a.shape)
+    strength = rank.ravel().copy()
     h = size // 2
-    out = []
-    for idx in order:                  # loop over candidate peaks (cells above threshold)
-        if not alive[idx]:
-            continue
-        j, n = divmod(int(idx), n_theta)
-        out.append((j, n))
-        dn = np.arange(-h, h + 1)
-        nn = n + dn
-        wrap = (nn < 0) | (nn >= n_theta)
-        jj_c = np.arange(j - h, j + h + 1)
-        for col, w in zip(nn % n_theta, wrap):
-            rows = (n_rho - 1 - jj_c) if w else jj_c       # mirrored rho across the wrap
-            rows = rows[(rows >= 0) & (rows < n_rho)]
-            alive[rows * n_theta + col] = False
-    return np.array(out, dtype=np.int64).reshape(-1, 2)
+    hw = min(h, n_theta)
+
+    def padded(b):
+        # theta wrap: the columns beyond pi are the first ones with rho mirrored
+        if hw == 0:
+            return b
+        return np.concatenate([b[:, ::-1, n_theta - hw:], b, b[:, ::-1, :hw]], axis=2)
+
+    def crop(b):
+        return b[:, :, hw:hw + n_theta] if hw else b
+
+    fp = (1, size, size)
+    kept = []
+    while rank.any():
+        local = crop(maximum_filter(padded(rank), size=fp, mode="constant", cval=0))
+        sel = (rank > 0) & (rank == local)
+        kept.append(np.flatnonzero(sel))
+        gone = crop(maximum_filter(padded(sel.view(np.uint8)), size=fp, mode="constant",
+                                   cval=0)) > 0
+        rank[gone] = 0
+    idx = np.concatenate(kept) if kept else np.zeros(0, np.int64)
+    idx = idx[np.argsort(-strength[idx], kind="stable")]
+    g, j, n = np.unravel_index(idx, a.shape)
+    out = np.column_stack([g, j, n]).astype(np.int64).reshape(-1, 3)
+    return out[:, 1:] if single else out
+

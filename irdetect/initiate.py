@@ -395,20 +395,32 @@ class _Window:
                              range_=self.polar[0][idx], azimuth=self.polar[1][idx])
         return np.full((idx.size, np.size(theta)), p["sigma"])
 
+    def pair_sigma_rho(self, idx, theta, p):
+        """rho sigma of measurement idx[i] at angle theta[i] (eq. 6 when polar)."""
+        if self.polar is not None and (p["sigma_range"] > 0 or p["sigma_azimuth"] > 0):
+            d = theta - self.polar[1][idx]
+            return np.hypot(np.cos(d) * p["sigma_range"],
+                            np.sin(d) * self.polar[0][idx] * p["sigma_azimuth"])
+        return np.full(idx.size, float(p["sigma"]))
+
 
 def _initiate(x, y, t, sidx, uscans, polar, p):
     win = _Window(x, y, t, sidx, uscans, polar, p)
     if p["method"] == "mn-logic":
-        tracks = _mn_logic(win, p)
-        return _finish(win, tracks, p)
-    peaks = _select_peaks(win, p)              # list of (group, rho_local, theta, value)
-    tracks = []
-    seen: dict = {}                            # member set -> tracks found from it
-    for g, rho, theta, value in peaks:
-        for members in _tracks_of_peak(win, g, rho, theta, p, seen):
-            tracks.append((members, g, rho, theta, value))
-    tracks = _dedupe(tracks, win, within=p["verify"])
-    return _finish(win, tracks, p)
+        members = _mn_logic(win, p)
+        n = len(members)
+        return _finish(win, members, np.zeros(n, np.int64), np.zeros(n), np.zeros(n),
+                       np.array([m.size for m in members], float), p)
+    g, rho, theta, value = _select_peaks(win, p)
+    ptr, mem = _support(win, g, rho, theta, p)
+    if p["verify"]:
+        src, members = _verify(win, ptr, mem, theta, p)
+    else:
+        src = np.flatnonzero(np.diff(ptr) >= 2)
+        members = [mem[ptr[i]:ptr[i + 1]] for i in src]
+    keep = _dedupe(members, g[src], value[src], win, within=p["verify"])
+    src = src[keep]
+    return _finish(win, [members[i] for i in keep], g[src], rho[src], theta[src], value[src], p)
 
 
 def _accumulate(win: _Window, p):
@@ -442,39 +454,27 @@ def _accumulate(win: _Window, p):
 
 
 def _select_peaks(win: _Window, p):
+    """Selected cells of every tile: arrays group, rho (tile-local), theta, value."""
     acc, thr = _accumulate(win, p)
     grid = win.grid
     method = p["method"]
-    out = []
     if method == "opencv":
         return _opencv_peaks(win, acc, thr, p)
     cand = np.argwhere(acc >= thr)               # (K, 3): group, rho index, theta index
-    if cand.size == 0:
-        return out
-    vals = acc[tuple(cand.T)]
-    rhos = grid.rho_centres[cand[:, 1]]
-    thetas = grid.theta_centres[cand[:, 2]]
-    cluster = method == "hough-sc" or (p["merge_peaks"] and method != "hough")
-    groups = np.unique(cand[:, 0])
-    for g in groups:                              # loop over tiles holding candidates
-        k = np.flatnonzero(cand[:, 0] == g)
-        if method == "nms":
-            pk = nms_peaks(acc[g], size=p["nms_size"], threshold=thr - 1e-9)
-            out += [(int(g), grid.rho_centres[j], grid.theta_centres[n], acc[g, j, n])
-                    for j, n in pk]
-        elif cluster:
-            span_rho = grid.rho_max - grid.rho_min
-            cl = subtractive_cluster(
-                np.column_stack([rhos[k], thetas[k]]),
-                radii=[p["radius_rho"] * grid.drho / span_rho,
-                       p["radius_theta"] * grid.dtheta / math.pi],
-                squash=p["squash"], accept_ratio=p["accept_ratio"],
-                reject_ratio=p["reject_ratio"],
-                bounds=[[grid.rho_min, 0.0], [grid.rho_max, math.pi]], wrap_lines=True)
-            out += [(int(g), rhos[k][i], thetas[k][i], vals[k][i]) for i in cl.index]
-        else:
-            out += [(int(g), rhos[i], thetas[i], vals[i]) for i in k]
-    return out
+    if method == "nms":
+        cand = nms_peaks(acc, size=p["nms_size"], threshold=thr - 1e-9)
+    elif method == "hough-sc" or (p["merge_peaks"] and method != "hough"):
+        # all tiles in one call: the tiles' candidates never interact (groups)
+        cl = subtractive_cluster(
+            np.column_stack([grid.rho_centres[cand[:, 1]], grid.theta_centres[cand[:, 2]]]),
+            radii=[p["radius_rho"] * grid.drho / (grid.rho_max - grid.rho_min),
+                   p["radius_theta"] * grid.dtheta / math.pi],
+            squash=p["squash"], accept_ratio=p["accept_ratio"],
+            reject_ratio=p["reject_ratio"], bounds=[[grid.rho_min, 0.0], [grid.rho_max, math.pi]],
+            wrap_lines=True, groups=cand[:, 0], labels=False)
+        cand = cand[cl.index]
+    return (cand[:, 0].astype(np.int64), grid.rho_centres[cand[:, 1]],
+            grid.theta_centres[cand[:, 2]], acc[tuple(cand.T)])
 
 
 def _opencv_peaks(win: _Window, acc, thr, p):
@@ -482,176 +482,308 @@ def _opencv_peaks(win: _Window, acc, thr, p):
 
     grid = win.grid
     out = []
-    for g in np.flatnonzero((acc >= thr).any(axis=(1, 2))):
+    for g in np.flatnonzero((acc >= thr).any(axis=(1, 2))):   # tiles holding candidates
         sl = win.group_members(g)
         pts = np.column_stack([win.lx[sl], win.ly[sl]]).astype(np.float32).reshape(-1, 1, 2)
         lines = cv2.HoughLinesPointSet(pts, 64, int(thr), grid.rho_min, grid.rho_max,
                                        grid.drho, grid.dtheta / 2, math.pi, grid.dtheta)
-        if lines is None:
-            continue
-        for votes, rho, theta in lines.reshape(-1, 3):
-            out.append((int(g), float(rho), float(theta), float(votes)))
-    return out
+        if lines is not None:
+            lines = lines.reshape(-1, 3).astype(float)
+            out.append(np.column_stack([np.full(len(lines), g), lines[:, 1], lines[:, 2],
+                                        lines[:, 0]]))
+    if not out:
+        return np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0)
+    a = np.concatenate(out)
+    return a[:, 0].astype(np.int64), a[:, 1], a[:, 2], a[:, 3]
 
 
-def _tracks_of_peak(win: _Window, g, rho, theta, p, seen=None):
-    """Members of one selected cell, split into constant-velocity tracks when verifying."""
-    sl = win.group_members(g)
-    lx, ly = win.lx[sl], win.ly[sl]
-    d = lx * math.cos(theta) + ly * math.sin(theta) - rho
+def _expand(starts, counts):
+    """Concatenated ranges [starts[i], starts[i] + counts[i]) (CSR expansion)."""
+    counts = np.asarray(counts, np.int64)
+    offs = np.repeat(np.asarray(starts, np.int64) - np.cumsum(np.r_[0, counts[:-1]]), counts)
+    return offs + np.arange(counts.sum())
+
+
+def _support(win: _Window, g, rho, theta, p, chunk: int = 2_000_000):
+    """Measurements supporting every selected cell, as CSR (ptr, original indices).
+
+    Every (cell, measurement of the cell's tile) pair is tested at once: the measurement
+    supports the cell when its distance to the cell's line is within the band (``gate``
+    rho-sigma when verifying, the q1 membership level for the fuzzy paper form, half a
+    cell otherwise). Pairs are built in chunks of about ``chunk``.
+    """
+    starts = win.group_slices
+    cnt = starts[g + 1] - starts[g]
     if p["verify"]:
         k = p["gate"]
     elif p["method"] == "fuzzy-parallel-hough":
         k = math.sqrt(2 * math.log(1 / p["q1"])) if 0 < p["q1"] < 1 else 0.0
     else:
         k = 0.0
-    if k > 0:
-        sr = win.sigma_rho(np.arange(sl.start, sl.stop), np.array([theta]), p)[:, 0]
-        band = np.maximum(0.5 * win.grid.drho, k * sr)
-    else:
+    counts = np.zeros(g.size, np.int64)
+    mems = []
+    bounds = np.searchsorted(np.cumsum(cnt), np.arange(chunk, cnt.sum() + chunk, chunk))
+    lo = 0
+    for hi in np.unique(np.r_[bounds + 1, g.size]):      # a few chunks of pairs
+        hi = min(int(hi), g.size)
+        if hi <= lo:
+            continue
+        pk = np.repeat(np.arange(lo, hi), cnt[lo:hi])
+        pos = _expand(starts[g[lo:hi]], cnt[lo:hi])
+        th = theta[pk]
+        d = win.lx[pos] * np.cos(th) + win.ly[pos] * np.sin(th) - rho[pk]
         band = 0.5 * win.grid.drho
-    idx = win.pt[sl][np.abs(d) <= band]
-    if idx.size < 2:
-        return []
-    if not p["verify"]:
-        return [idx]
-    if np.unique(win.sidx[idx]).size < _min_points(win, p):
-        return []
-    key = idx.tobytes()
-    if seen is not None and key in seen:       # the same measurements as an earlier cell
-        return [] if p["verify"] else seen[key]
-    found = _cv_tracks(win, idx, theta, p)
-    if seen is not None:
-        seen[key] = found
-    return found
+        if k > 0:
+            band = np.maximum(band, k * win.pair_sigma_rho(win.pt[pos], th, p))
+        ok = np.abs(d) <= band
+        counts[lo:hi] = np.bincount(pk[ok] - lo, minlength=hi - lo)
+        mems.append(win.pt[pos[ok]])
+        lo = hi
+    mem = np.concatenate(mems) if mems else np.zeros(0, np.int64)
+    return np.r_[0, np.cumsum(counts)], mem
 
 
 def _min_points(win, p):
     return max(2, int(math.ceil(p["min_hits"] * win.n_scans - 1e-9)))
 
 
-def _cv_tracks(win: _Window, idx, theta, p, max_tracks: int = 4):
-    """Split measurements near one line into constant-velocity tracks (exhaustive pairs)."""
-    x, y, t, s_of, sig = win.x[idx], win.y[idx], win.t[idx], win.sidx[idx], win.sigma[idx]
-    along = -x * math.sin(theta) + y * math.cos(theta)
+def _verify(win: _Window, ptr, mem, theta, p, max_members: int = 64):
+    """Constant-velocity check of the supporting measurements of every selected cell.
+
+    Cells with the same measurement set are checked once; cells whose measurements cover
+    fewer than ``min_hits`` of the scans are skipped. The rest are checked in batches of
+    similar size (``_cv_batch``). A cell with more than ``max_members`` measurements
+    keeps the ``max_members`` nearest its line (bounds the pair search).
+
+    Returns
+    -------
+    src : ndarray of int
+        Cell of every track.
+    members : list of ndarray
+        Original indices of every track's measurements.
+    """
     need = _min_points(win, p)
-    pool = np.ones(idx.size, bool)
-    out = []
-    onehot = np.zeros((idx.size, win.n_scans), bool)
-    onehot[np.arange(idx.size), s_of] = True
-    while pool.sum() >= need and len(out) < max_tracks:
-        live = np.flatnonzero(pool)
-        i, j = np.triu_indices(live.size, 1)
-        i, j = live[i], live[j]
-        dt = t[j] - t[i]
-        ok = dt != 0
-        i, j, dt = i[ok], j[ok], dt[ok]
-        v = (along[j] - along[i]) / dt
-        speed_ok = np.abs(v) >= p["v_min"]
-        if p["v_max"] > 0:
-            speed_ok &= np.abs(v) <= p["v_max"] * 1.2
-        i, j, v = i[speed_ok], j[speed_ok], v[speed_ok]
-        if i.size == 0:
-            break
-        s0 = along[i] - v * t[i]
-        res = np.abs(along[live][None, :] - (s0[:, None] + v[:, None] * t[live][None, :]))
-        tol = 2 * p["gate"] * sig[live][None, :]
-        inl = res <= tol
-        nscan = (inl.astype(np.int32) @ onehot[live].astype(np.int32) > 0).sum(axis=1)
-        cost = np.where(inl, res / tol, 1.0).sum(axis=1)
-        best = np.lexsort((cost, -nscan))[0]
-        if nscan[best] < need:
-            break
-        cand = live[inl[best]]
-        r = res[best][inl[best]]
-        members = _one_per_scan(cand, s_of[cand], r)
-        members = _refine(win, idx, members, pool, p)
-        pool[members] = False
-        pool[cand] = False if members.size >= need else pool[cand]
-        if members.size < need:
-            pool[live[inl[best]]] = False     # this hypothesis is spent
+    P = ptr.size - 1
+    cnt = np.diff(ptr)
+    pk = np.repeat(np.arange(P), cnt)
+    # distinct scans per cell
+    S = win.n_scans
+    ps = np.unique(pk * S + win.sidx[mem])
+    nscan = np.bincount(ps // S, minlength=P)
+    # one check per distinct measurement set: a 64-bit hash of the set
+    code = np.random.default_rng(12345).integers(1, 2**63, win.x.size, dtype=np.uint64)
+    h = np.zeros(P, np.uint64)
+    np.add.at(h, pk, code[mem])
+    h ^= cnt.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)
+    cand = np.flatnonzero(nscan >= need)
+    _, first = np.unique(h[cand], return_index=True)
+    cand = np.sort(cand[first])
+    src, members = [], []
+    K = np.minimum(cnt[cand], max_members)
+    edges = [2, 6, 8, 10, 12, 14, 16, 20, 24, 28, 32, 40, 48, 56, max_members]
+    for lo_k, hi_k in zip(edges[:-1], edges[1:]):           # size buckets: little padding
+        sel = cand[(K > lo_k) & (K <= hi_k)] if lo_k > 2 else cand[K <= hi_k]
+        if sel.size == 0:
             continue
-        out.append(idx[members])
+        Q = hi_k * (hi_k - 1) // 2
+        batch = max(1, 2_000_000 // (Q * hi_k))
+        for a in range(0, sel.size, batch):
+            cells = sel[a:a + batch]
+            s, m = _cv_batch(win, ptr, mem, cells, theta[cells], hi_k, p)
+            src += s
+            members += m
+    return np.array(src, np.int64), members
+
+
+def _cv_batch(win: _Window, ptr, mem, cells, theta, K, p, max_tracks: int = 4):
+    """Split the measurements of a batch of cells into constant-velocity tracks.
+
+    Per cell: every pair of measurements of different scans is a hypothesis (position and
+    speed along the cell's line, speed within [v_min, 1.2 v_max]); the hypothesis with
+    the most scans within 2 ``gate`` sigma (then the smallest normalised residual) gives
+    one measurement per scan, refined twice by a least-squares CV fit (nearest
+    measurement per scan within 1.15 ``gate`` sigma of the fit); the track is kept when
+    it spans ``min_hits`` of the scans and its fitted speed is within bounds. Its
+    measurements (and the hypothesis' inliers) leave the pool and the search repeats,
+    up to ``max_tracks`` per cell. All cells of the batch are processed together as
+    (cells, K) arrays padded to K measurements.
+    """
+    B = cells.size
+    cnt = np.minimum(ptr[cells + 1] - ptr[cells], K)
+    start = ptr[cells]
+    # padded (B, K) member indices; for cells above K keep the K nearest the line
+    full = ptr[cells + 1] - ptr[cells]
+    idx = np.full((B, K), -1, np.int64)
+    over = full > K
+    rows = np.repeat(np.arange(B), cnt)
+    cols = np.arange(cnt.sum()) - np.repeat(np.cumsum(np.r_[0, cnt[:-1]]), cnt)
+    idx[rows, cols] = mem[_expand(start, cnt)]
+    for b in np.flatnonzero(over):                    # rare: crowded cells
+        m = mem[ptr[cells[b]]:ptr[cells[b] + 1]]
+        across = win.x[m] * math.cos(theta[b]) + win.y[m] * math.sin(theta[b])
+        idx[b] = m[np.argsort(np.abs(across - np.median(across)), kind="stable")[:K]]
+    valid = idx >= 0
+    ii = np.where(valid, idx, 0)
+    x, y, t = win.x[ii], win.y[ii], win.t[ii]
+    sc = win.sidx[ii]
+    sig = win.sigma[ii]
+    S = win.n_scans
+    onehot = ((sc[:, :, None] == np.arange(S)[None, None, :]) & valid[:, :, None])
+    onehot_f = onehot.astype(np.float32)
+    along = -x * np.sin(theta)[:, None] + y * np.cos(theta)[:, None]
+    ia, ib = np.triu_indices(K, 1)
+    dt = t[:, ib] - t[:, ia]
+    need = _min_points(win, p)
+    gate = p["gate"]
+    vmin, vmax = p["v_min"], p["v_max"]
+    tol = 2 * gate * sig                                           # (B, K)
+    pool = valid.copy()
+    done = np.zeros(B, bool)
+    ntr = np.zeros(B, np.int64)
+    src, out = [], []
+    br = np.arange(B)
+    for _ in range(2 * max_tracks):                    # rounds over all cells at once
+        done |= (pool.sum(axis=1) < need) | (ntr >= max_tracks)
+        if done.all():
+            break
+        ok_pair = pool[:, ia] & pool[:, ib] & (dt != 0) & ~done[:, None]
+        v = (along[:, ib] - along[:, ia]) / np.where(dt != 0, dt, 1.0)
+        ok_pair &= np.abs(v) >= vmin
+        if vmax > 0:
+            ok_pair &= np.abs(v) <= vmax * 1.2
+        s0 = along[:, ia] - v * t[:, ia]
+        res = np.abs(along[:, None, :] - (s0[:, :, None] + v[:, :, None] * t[:, None, :]))
+        inl = (res <= tol[:, None, :]) & pool[:, None, :] & ok_pair[:, :, None]
+        nsc = (np.matmul(inl.astype(np.float32), onehot_f) > 0).sum(axis=2)   # (B, Q)
+        cost = np.where(inl, res / tol[:, None, :], 1.0).sum(axis=2)
+        score = np.where(ok_pair, nsc - cost / (K + 1), -np.inf)
+        best = np.argmax(score, axis=1)
+        nbest = nsc[br, best]
+        done |= ~np.isfinite(score[br, best]) | (nbest < need)
+        cand = inl[br, best] & ~done[:, None]                      # (B, K)
+        members = _one_per_scan(np.where(cand, res[br, best], np.inf), onehot)
+        for _r in range(2):                                        # LS refinement
+            e = _fit_error(x, y, t, members)
+            members = _one_per_scan(np.where(pool & (e <= gate * sig * 1.15), e, np.inf),
+                                    onehot)
+        n_m = members.sum(axis=1)
+        vx, vy = _fit_velocity(x, y, t, members)
+        speed = np.hypot(vx, vy)
+        good = (n_m >= need) & ~done & (speed >= vmin) & ((vmax <= 0) | (speed <= vmax))
+        for b in np.flatnonzero(good):                 # accepted tracks (a handful)
+            src.append(int(cells[b]))
+            out.append(idx[b][members[b]])
+        ntr += good
+        pool &= ~(members | cand)
+    return src, out
+
+
+def _one_per_scan(score, onehot):
+    """(B, K) mask keeping, per cell and scan, the member of least finite score."""
+    B, K, S = onehot.shape
+    s3 = np.where(onehot, score[:, :, None], np.inf)              # (B, K, S)
+    arg = np.argmin(s3, axis=1)                                   # (B, S)
+    fin = np.isfinite(np.take_along_axis(s3, arg[:, None, :], axis=1)[:, 0, :])
+    out = np.zeros((B, K), bool)
+    b, s = np.nonzero(fin)
+    out[b, arg[b, s]] = True
     return out
 
 
-def _one_per_scan(cand, scans, r):
-    order = np.lexsort((r, scans))
-    cand, scans = cand[order], scans[order]
-    first = np.r_[True, scans[1:] != scans[:-1]]
-    return cand[first]
+def _fit_moments(x, y, t, m):
+    n = np.maximum(m.sum(axis=1), 1)
+    tm = (t * m).sum(axis=1) / n
+    xm = (x * m).sum(axis=1) / n
+    ym = (y * m).sum(axis=1) / n
+    dt = (t - tm[:, None]) * m
+    var = (dt ** 2).sum(axis=1)
+    vx = np.where(var > 0, (dt * (x - xm[:, None])).sum(axis=1) / np.where(var > 0, var, 1), 0.0)
+    vy = np.where(var > 0, (dt * (y - ym[:, None])).sum(axis=1) / np.where(var > 0, var, 1), 0.0)
+    return tm, xm, ym, vx, vy
 
 
-def _refine(win, idx, members, pool, p, rounds: int = 2):
-    """LS fit, then re-take for each scan the pooled point nearest the fit within gate."""
-    x, y, t, s_of, sig = win.x[idx], win.y[idx], win.t[idx], win.sidx[idx], win.sigma[idx]
-    live = np.flatnonzero(pool)
-    for _ in range(rounds):
-        if members.size < 2:
-            return members
-        x0, y0, vx, vy, _ = fit_constant_velocity(x[members], y[members], t[members])
-        t0 = t[members].min()
-        e = np.hypot(x[live] - (x0 + vx * (t[live] - t0)), y[live] - (y0 + vy * (t[live] - t0)))
-        ok = e <= p["gate"] * sig[live] * 1.15
-        new = _one_per_scan(live[ok], s_of[live[ok]], e[ok])
-        if np.array_equal(np.sort(new), np.sort(members)):
-            break
-        members = new
-    if members.size >= 2:
-        _, _, vx, vy, _ = fit_constant_velocity(x[members], y[members], t[members])
-        speed = math.hypot(vx, vy)
-        if speed < p["v_min"] or (p["v_max"] > 0 and speed > p["v_max"]):
-            return members[:0]
-    return members
+def _fit_velocity(x, y, t, m):
+    return _fit_moments(x, y, t, m)[3:]
 
 
-def _dedupe(tracks, win, within: bool = False):
-    """Drop a track sharing half its measurements or more with a better track.
+def _fit_error(x, y, t, m):
+    """(B, K) 2-D distance of every measurement to its cell's CV fit of the members m."""
+    tm, xm, ym, vx, vy = _fit_moments(x, y, t, m)
+    ex = x - (xm[:, None] + vx[:, None] * (t - tm[:, None]))
+    ey = y - (ym[:, None] + vy[:, None] * (t - tm[:, None]))
+    e = np.hypot(ex, ey)
+    return np.where(m.sum(axis=1)[:, None] >= 2, e, np.inf)
+
+
+def _dedupe(members, groups, value, win, within: bool = False):
+    """Indices of the tracks kept: drop a track sharing half its measurements or more
+    with a better (longer, then higher-valued) track.
 
     Without ``within`` only tracks of other tiles count (the same track seen by
     overlapping tiles), so the peak clustering of a method in the paper's form
     (``verify=False``) stays visible; with ``within`` (``verify=True``) two selected cells
     that lead to the same constant-velocity track give it once.
     """
-    if len(tracks) < 2 or (win.n_groups == 1 and not within):
-        return tracks
-    order = sorted(range(len(tracks)), key=lambda i: (-len(tracks[i][0]), -tracks[i][4]))
+    n = len(members)
+    if n < 2 or (win.n_groups == 1 and not within):
+        return list(range(n))
+    sizes = np.array([m.size for m in members])
+    order = np.lexsort((-np.asarray(value, float), -sizes))
     owner = np.full(win.x.size, -1)
     kept = []
-    for i in order:
-        m, g = tracks[i][0], tracks[i][1]
+    for i in order:                          # greedy over tracks, cheap steps
+        m, g = members[i], groups[i]
         own = owner[m]
         other = (own >= 0) & ((own != g) | within)
-        if other.sum() * 2 >= m.size:
+        if np.count_nonzero(other) * 2 >= m.size:
             continue
         owner[m[own < 0]] = g
-        kept.append(tracks[i])
-    return kept
+        kept.append(i)
+    return sorted(kept)
 
 
-def _finish(win: _Window, tracks, p):
-    rows = np.zeros(len(tracks), _ROW)
-    members = []
-    for r, (m, g, rho, theta, value) in enumerate(tracks):
-        m = np.asarray(m)
-        x0, y0, vx, vy, rms = fit_constant_velocity(win.x[m], win.y[m], win.t[m])
-        t_start, t_end = win.t[m].min(), win.t[m].max()
-        if p["verify"] or p["method"] == "mn-logic":
-            if math.hypot(vx, vy) > 0:
-                th = (math.atan2(vy, vx) + math.pi / 2) % math.pi
-            else:
-                th = theta % math.pi
-            tm = 0.5 * (t_start + t_end) - t_start
-            rh = (x0 + vx * tm) * math.cos(th) + (y0 + vy * tm) * math.sin(th)
-            score = np.unique(win.sidx[m]).size / win.n_scans
-        else:
-            th = theta
-            rh = rho + win.cx[g] * math.cos(theta) + win.cy[g] * math.sin(theta)
-            score = float(value)
-        rows[r] = (rh, th, vx, vy, t_start, t_end, win.uscans[win.sidx[m].min()],
-                   win.uscans[win.sidx[m].max()], m.size, score, x0, y0)
-        members.append(m)
-    return rows, members
+def _finish(win: _Window, members, g, rho, theta, value, p):
+    """Result rows: a least-squares CV fit of every track's measurements (vectorised)."""
+    n = len(members)
+    rows = np.zeros(n, _ROW)
+    if n == 0:
+        return rows, []
+    cnt = np.array([m.size for m in members])
+    mem = np.concatenate(members)
+    tid = np.repeat(np.arange(n), cnt)
+    x, y, t = win.x[mem], win.y[mem], win.t[mem]
+    w = np.bincount(tid, minlength=n).astype(float)
+    tm = np.bincount(tid, t, n) / w
+    xm = np.bincount(tid, x, n) / w
+    ym = np.bincount(tid, y, n) / w
+    dtt = t - tm[tid]
+    var = np.bincount(tid, dtt ** 2, n)
+    safe = np.where(var > 0, var, 1.0)
+    vx = np.where(var > 0, np.bincount(tid, dtt * (x - xm[tid]), n) / safe, 0.0)
+    vy = np.where(var > 0, np.bincount(tid, dtt * (y - ym[tid]), n) / safe, 0.0)
+    t_start = np.minimum.reduceat(t, np.r_[0, np.cumsum(cnt)[:-1]])
+    t_end = np.maximum.reduceat(t, np.r_[0, np.cumsum(cnt)[:-1]])
+    x0 = xm + vx * (t_start - tm)
+    y0 = ym + vy * (t_start - tm)
+    s_lo = np.minimum.reduceat(win.sidx[mem], np.r_[0, np.cumsum(cnt)[:-1]])
+    s_hi = np.maximum.reduceat(win.sidx[mem], np.r_[0, np.cumsum(cnt)[:-1]])
+    if p["verify"] or p["method"] == "mn-logic":
+        moving = np.hypot(vx, vy) > 0
+        th = np.where(moving, (np.arctan2(vy, vx) + math.pi / 2) % math.pi, theta % math.pi)
+        tmid = 0.5 * (t_start + t_end)
+        rh = (xm + vx * (tmid - tm)) * np.cos(th) + (ym + vy * (tmid - tm)) * np.sin(th)
+        ps = np.unique(tid * win.n_scans + win.sidx[mem])
+        score = np.bincount(ps // win.n_scans, minlength=n) / win.n_scans
+    else:
+        th = theta
+        rh = rho + win.cx[g] * np.cos(theta) + win.cy[g] * np.sin(theta)
+        score = np.asarray(value, float)
+    for name, col in (("rho", rh), ("theta", th), ("vx", vx), ("vy", vy), ("t_start", t_start),
+                      ("t_end", t_end), ("scan_start", win.uscans[s_lo]),
+                      ("scan_end", win.uscans[s_hi]), ("n_points", cnt), ("score", score),
+                      ("x0", x0), ("y0", y0)):
+        rows[name] = col
+    return rows, [np.asarray(m) for m in members]
 
 
 # ------------------------------------------------------------------------------------------
@@ -751,5 +883,5 @@ def _mn_logic(win: _Window, p):
         if owner[m].sum() * 2 >= m.size:
             continue
         owner[m] = True
-        kept.append((m, 0, 0.0, 0.0, float(m.size)))
+        kept.append(m)
     return kept
