@@ -39,6 +39,7 @@ class SuppressConfig:
     gap: int = 8
     tolerance: int = 1
     fixed_pattern: bool = True
+    samples: int = 3
 
 
 @dataclass(frozen=True)
