@@ -89,8 +89,8 @@ def main(argv=None) -> int:
         data.mkdir(parents=True, exist_ok=True)
         written, sim_s = simulate_inputs(data, args.n, args.size, args.frames)
         mb = sum(p.stat().st_size for p in data.glob("*.h5")) / 1e6
-        print(f"{args.n} sequences {args.size}x{args.size}x{args.frames} ({mb:.0f} MB) "
-              f"simulated in {sim_s:.1f} s", flush=True)
+        print(f"{args.n} sequences {args.size}x{args.size}x{args.frames} ({mb:.0f} MB); "
+              f"{written} simulated in {sim_s:.1f} s", flush=True)
 
         rows = [run("serial (--jobs 1)", data, tmp / "serial", jobs=1),
                 run("2 local processes (--jobs 2)", data, tmp / "jobs2", jobs=2)]
@@ -141,9 +141,11 @@ def main(argv=None) -> int:
         f"{platform.python_version()}, dask {dask.__version__}; the cores were shared with "
         "other work while this ran (a load above 2 means the two cores were oversubscribed "
         "by other processes), so the timings are noisy.",
-        "- Median seconds per sequence is the pipeline's own time inside a worker; with two "
-        "workers on two cores it grows because the workers compete for the cores and the "
-        "disk.",
+        "- Median seconds per sequence is `process_file`'s own wall time inside a worker: "
+        "when it differs between rows, the rows ran under different load (the other "
+        "processes on the machine, or the batch's own workers competing for the cores), and "
+        "the sequences/s are not comparable beyond that. A speed-up above 2 on 2 cores "
+        "means the load fell between rows.",
         "",
     ]
     args.out.parent.mkdir(parents=True, exist_ok=True)

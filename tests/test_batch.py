@@ -296,8 +296,9 @@ def test_dask_cluster_gives_the_same_tables(seqdir, reference, cluster, tmp_path
     report = run_batch([seqdir[0]], tmp_path / "client", scheduler=client)
     assert [r.status for r in report.rows] == ["ok"] * 4
     assert _tables(tmp_path / "client") == reference[1]
-    # one OpenCV thread per Dask worker thread: no oversubscription of the cores
+    # the workers were tuned: one OpenCV thread per Dask worker thread
     assert set(client.run(cv2.getNumThreads).values()) == {1}
+    assert set(client.run(_worker_tuned).values()) == {True}
     # a scheduler file (dask scheduler --scheduler-file) names the cluster as well
     sched = tmp_path / "sched.json"
     sched.write_text(json.dumps({"address": lc.scheduler_address}))
@@ -354,6 +355,11 @@ def test_killed_worker_mid_run_still_completes(cluster, tmp_path):
     assert _tables(tmp_path / "dask") == _tables(expected_dir)
     assert not list((tmp_path / "dask").glob(".*.tmp"))     # the dead worker's temp file
     client.wait_for_workers(2, timeout=60)
+
+
+def _worker_tuned() -> bool:
+    import irdetect.batch
+    return irdetect.batch._WORKER_TUNED
 
 
 def _exit_or_square(x):
