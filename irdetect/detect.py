@@ -161,53 +161,79 @@ def detect(combined, *, window: int = 3, k: float = 3.5, sigma: str = "local",
 
 
 def _detect(img, window, k, sigma, tile, directions):
-    best = None
-    best_dir = None
-    for d, kern in enumerate(line_kernels(window, directions)):
-        s = cv2.filter2D(img, cv2.CV_32F, kern, borderType=cv2.BORDER_REFLECT)
-        loc, scale = _location_scale(s, sigma, tile)
-        z = (s - loc) / scale
+    h, w = img.shape
+    kernels = line_kernels(window, directions)
+    # every direction's merged sum in one stack, so the tile statistics of all of them
+    # come from one sort
+    s = np.empty((len(kernels), h, w), np.float32)
+    for d, kern in enumerate(kernels):
+        cv2.filter2D(img, cv2.CV_32F, kern, dst=s[d], borderType=cv2.BORDER_REFLECT)
+    best = best_dir = None
+    for d, (loc, scale) in enumerate(_location_scale(s, sigma, tile)):
+        z = s[d]
+        np.subtract(z, loc, out=z)
+        np.divide(z, scale, out=z)
         if best is None:
             best, best_dir = z, np.zeros(z.shape, np.int8)
         else:
             better = z > best
-            best = np.where(better, z, best)
-            best_dir[better] = d
+            np.maximum(best, z, out=best)
+            np.copyto(best_dir, np.int8(d), where=better)
     mask = best > k
-    best_dir[~mask] = -1
-    return DirectionalDetection(mask=mask, direction=best_dir, response=best.astype(np.float32))
+    np.copyto(best_dir, np.int8(-1), where=~mask)
+    return DirectionalDetection(mask=mask, direction=best_dir, response=best.copy())
+
+
+def _median_last(v: np.ndarray) -> np.ndarray:
+    """``np.median(v, axis=-1)`` (same values) by a full sort, which numpy vectorises:
+    about 10x faster than the partition np.median uses for these small rows."""
+    v = np.sort(v, axis=-1)
+    n = v.shape[-1]
+    if n % 2:
+        return v[..., n // 2]
+    return (v[..., n // 2 - 1] + v[..., n // 2]) / v.dtype.type(2)
 
 
 def _location_scale(s: np.ndarray, sigma: str, tile: int):
+    """Robust location and scale of each direction's merged sum, s of shape (D, H, W).
+
+    Returns a list of D pairs (location, scale): float32 scalars (``global``) or (H, W)
+    maps (``local``, bilinear between tile centres).
+    """
     tiny = np.float32(np.finfo(np.float32).tiny)
-    h, w = s.shape
+    n_dir, h, w = s.shape
     if sigma == "global" or (h < 2 * tile and w < 2 * tile):
-        v = s[::2, ::2].ravel()
-        med = np.median(v)
-        dev = np.abs(v - med)
-        sc = MAD_TO_SIGMA * np.median(dev)
-        if sc <= 0:
-            sc = 1.2533 * dev.mean()
-        return np.float32(med), np.float32(max(sc, tiny))
+        v = s[:, ::2, ::2].reshape(n_dir, -1)
+        med = _median_last(v)
+        dev = np.abs(v - med[:, None])
+        sc = MAD_TO_SIGMA * _median_last(dev)
+        flat = sc <= 0
+        if flat.any():
+            sc[flat] = 1.2533 * dev.mean(axis=1)[flat]
+        sc = np.maximum(sc, tiny)
+        return [(np.float32(m), np.float32(c)) for m, c in zip(med, sc)]
     ny, nx = max(1, h // tile), max(1, w // tile)
     th, tw = h // ny, w // nx
     # every other pixel in each direction: the median and MAD of a tile need no more,
     # and this is the stage's main cost
-    blocks = s[:ny * th, :nx * tw].reshape(ny, th, nx, tw)[:, ::2, :, ::2]
-    blocks = blocks.transpose(0, 2, 1, 3).reshape(ny, nx, -1)
-    med = np.median(blocks, axis=2)
+    blocks = s[:, :ny * th, :nx * tw].reshape(n_dir, ny, th, nx, tw)[:, :, ::2, :, ::2]
+    blocks = blocks.transpose(0, 1, 3, 2, 4).reshape(n_dir, ny, nx, -1)
+    med = _median_last(blocks)
     dev = np.abs(blocks - med[..., None])
-    sc = MAD_TO_SIGMA * np.median(dev, axis=2)
+    sc = MAD_TO_SIGMA * _median_last(dev)
     flat = sc <= 0
     if flat.any():
-        sc[flat] = 1.2533 * dev.mean(axis=2)[flat]
-    # a tile of pure quantisation steps (MAD 0) must not give a near-zero scale:
-    # floor each tile at a quarter of the median tile scale
-    floor = max(0.25 * float(np.median(sc)), float(tiny))
-    sc = np.maximum(sc, floor)
-    loc_map = cv2.resize(med.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
-    sc_map = cv2.resize(sc.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
-    return loc_map, sc_map
+        sc[flat] = 1.2533 * dev.mean(axis=3)[flat]
+    out = []
+    for d in range(n_dir):
+        # a tile of pure quantisation steps (MAD 0) must not give a near-zero scale:
+        # floor each tile at a quarter of the median tile scale
+        floor = max(0.25 * float(np.median(sc[d])), float(tiny))
+        scd = np.maximum(sc[d], floor)
+        loc_map = cv2.resize(med[d].astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
+        sc_map = cv2.resize(scd.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
+        out.append((loc_map, sc_map))
+    return out
 
 
 def _check_window(window):
