@@ -90,13 +90,19 @@ def fuse(detection: DirectionalDetection, combined, *, gap: int = 1, d_min: floa
 
 def group_labels(mask: np.ndarray, gap: int) -> tuple[int, np.ndarray]:
     """Label the groups of a candidate mask: (n_groups, labels of shape (H, W), 0 = none)."""
-    m = mask.astype(np.uint8)
+    n, labels = _components(mask, gap)
+    return n, np.where(mask, labels, 0)
+
+
+def _components(mask: np.ndarray, gap: int) -> tuple[int, np.ndarray]:
+    """Groups as labelled components of the dilated mask (labels off the mask not zeroed)."""
+    m = np.ascontiguousarray(mask).view(np.uint8) if mask.dtype == bool else mask.astype(np.uint8)
     if gap > 0:
         # p and q join when (p + B) and (q + B) touch, B a (gap + 1)-square: |p - q| <= gap + 1
         kern = np.ones((gap + 1, gap + 1), np.uint8)
         m = cv2.dilate(m, kern, anchor=(0, 0), borderType=cv2.BORDER_CONSTANT, borderValue=0)
     n, labels = cv2.connectedComponents(m, connectivity=8, ltype=cv2.CV_32S)
-    return n - 1, np.where(mask, labels, 0)
+    return n - 1, labels
 
 
 #: a local maximum splits its group only when its response reaches this fraction of the
@@ -104,38 +110,50 @@ def group_labels(mask: np.ndarray, gap: int) -> tuple[int, np.ndarray]:
 PEAK_RATIO = 0.5
 
 
-def _peak_labels(det: DirectionalDetection, labels, ys, xs, radius: int) -> np.ndarray:
-    """Label of the nearest strong local maximum (plateaus merged) for each candidate pixel."""
-    resp = np.where(det.mask, det.response, np.float32(-np.inf)).astype(np.float32)
+def _peak_labels(det: DirectionalDetection, idx, lab, radius: int) -> np.ndarray:
+    """Label of the nearest strong local maximum (plateaus merged) for each candidate pixel.
+
+    ``idx`` are the candidates' flat (row-major) pixel indices, ``lab`` their group labels.
+    """
+    h, w = det.mask.shape
+    r = det.response.reshape(-1)[idx]
+    resp = np.full(h * w, -np.inf, np.float32)
+    resp[idx] = r
     kern = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
-    peaks = det.mask & (resp >= cv2.dilate(resp, kern))
-    n, plab = cv2.connectedComponents(peaks.astype(np.uint8), connectivity=8)
-    py, px = np.nonzero(peaks)
-    pl = plab[py, px] - 1
+    is_peak = r >= cv2.dilate(resp.reshape(h, w), kern).reshape(-1)[idx]
+    pidx = idx[is_peak]
+    img = np.zeros(h * w, np.uint8)
+    img[pidx] = 1
+    n, plab = cv2.connectedComponents(img.reshape(h, w), connectivity=8)
+    py, px = np.divmod(pidx, w)
+    pl = plab.reshape(-1)[pidx] - 1
     cnt = np.bincount(pl, minlength=n - 1)
     centres = np.column_stack([np.bincount(pl, px, n - 1) / cnt, np.bincount(pl, py, n - 1) / cnt])
     # each peak's response and its group's largest response
     peak_resp = np.full(n - 1, -np.inf)
-    np.maximum.at(peak_resp, pl, resp[py, px])
+    np.maximum.at(peak_resp, pl, r[is_peak])
     group = np.zeros(n - 1, np.int64)
-    group[pl] = labels[py, px]
-    group_max = np.full(int(labels.max()) + 1, -np.inf)
+    group[pl] = lab[is_peak]
+    group_max = np.full(int(lab.max()) + 1, -np.inf)
     np.maximum.at(group_max, group, peak_resp)
     strong = peak_resp >= PEAK_RATIO * group_max[group]
-    _, idx = cKDTree(centres[strong]).query(np.column_stack([xs, ys]))
-    return np.flatnonzero(strong)[idx]
+    ys, xs = np.divmod(idx, w)
+    _, near = cKDTree(centres[strong]).query(np.column_stack([xs, ys]))
+    return np.flatnonzero(strong)[near]
 
 
 def _fuse(det: DirectionalDetection, values: np.ndarray, gap: int, d_min: float,
           min_members: int, peak_radius: int = 0) -> np.ndarray:
-    ys, xs = np.nonzero(det.mask)
-    if xs.size == 0:
+    # flat indices of the candidates, row-major (the order of np.nonzero)
+    idx = np.flatnonzero(det.mask)
+    if idx.size == 0:
         return empty(CANDIDATE)
-    n, labels = group_labels(det.mask, gap)
-    lab = labels[ys, xs]
+    ys, xs = np.divmod(idx, det.mask.shape[1])
+    _, labels = _components(det.mask, gap)
+    lab = labels.reshape(-1)[idx]
     if peak_radius > 0:
         # a pixel's group is (its connected group, its nearest response maximum)
-        peak = _peak_labels(det, labels, ys, xs, peak_radius)
+        peak = _peak_labels(det, idx, lab, peak_radius)
         lab = lab.astype(np.int64) * (int(peak.max()) + 1) + peak
     # compact labels (dilation may create label ids without members)
     uniq, lab = np.unique(lab, return_inverse=True)
@@ -151,14 +169,14 @@ def _fuse(det: DirectionalDetection, values: np.ndarray, gap: int, d_min: float,
     beta = w / wsum[lab]
     fx = np.bincount(lab, beta * xs, g)
     fy = np.bincount(lab, beta * ys, g)
-    val = values[det.mask].astype(np.float64)  # same (row-major) order as np.nonzero
+    val = values.reshape(-1)[idx].astype(np.float64)
     inten = np.bincount(lab, beta * val, g)
-    resp = det.response[det.mask].astype(np.float64)
+    resp = det.response.reshape(-1)[idx].astype(np.float64)
     # strongest member per group: sort by (label, response) and take each label's last
     order = np.lexsort((resp, lab))
     last = order[np.r_[np.flatnonzero(np.diff(lab[order])), len(order) - 1]]
     score = resp[last]
-    direction = det.direction[det.mask][last]
+    direction = det.direction.reshape(-1)[idx][last]
     keep = count >= min_members
     out = np.zeros(int(keep.sum()), dtype=CANDIDATE)
     out["x"], out["y"] = fx[keep], fy[keep]
