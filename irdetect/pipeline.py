@@ -82,7 +82,7 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
     starts = window_starts(n_frames, length=cc.length, step=cc.step)
     sup = asdict(config.suppress)
     history = past_frames(**sup)
-    reader = _Reader(frames, history)
+    reader = _Reader(frames, history, cc.length)
     pending: deque = deque()
     segment_id = 0
     bar = _bar(n_frames, progress)
@@ -279,24 +279,48 @@ class _Pending:
 
 
 class _Reader:
-    """Read windows [a, b) with the ``history`` raw frames before a, reusing overlap."""
+    """Read windows [a, b) with the ``history`` raw frames before a, in the stored dtype.
 
-    def __init__(self, frames, history: int):
+    Frames go into one reused buffer of ``history + length + block`` frames, read ahead
+    in blocks the storage favours (an HDF5 chunk: a compressed chunk read in pieces is
+    decompressed once per piece), so memory is bounded whatever the sequence length.
+    The arrays returned are views of the buffer, valid until the next ``read``.
+    """
+
+    #: largest read-ahead in bytes (a 64-frame chunk of 640x512 uint16 frames is 42 MB)
+    MAX_BLOCK_BYTES = 48 << 20
+
+    def __init__(self, frames, history: int, length: int):
         self.frames = frames
         self.history = history
-        self.lo = 0
-        self.cache = None     # raw float32 frames [lo, lo + len(cache))
+        n, h, w = (int(v) for v in frames.shape)
+        self.n = n
+        frame_bytes = h * w * np.dtype(frames.dtype).itemsize
+        chunk = max(1, int(getattr(frames, "block_frames", 1)))
+        self.block = max(length, min(chunk, max(1, self.MAX_BLOCK_BYTES // frame_bytes)))
+        self.buf = np.empty((min(n, history + length + self.block), h, w), frames.dtype)
+        self.lo = self.hi = 0     # the buffer holds raw frames [lo, hi)
 
     def read(self, a: int, b: int):
         lo = max(0, a - self.history)
-        if self.cache is not None and self.lo <= lo < self.lo + len(self.cache):
-            have = self.cache[lo - self.lo:]
-            new = np.asarray(self.frames[self.lo + len(self.cache):b], dtype=np.float32)
-            data = np.concatenate([have, new]) if len(new) else have[:b - lo]
-        else:
-            data = np.asarray(self.frames[lo:b], dtype=np.float32)
-        self.lo, self.cache = lo, data
+        if not self.lo <= lo <= self.hi:
+            self.lo = self.hi = lo
+        if b > self.hi:
+            keep = self.hi - lo
+            if lo > self.lo:            # drop frames before lo: move the rest to the front
+                self.buf[:keep] = self.buf[lo - self.lo:self.hi - self.lo]
+            self.lo = lo
+            stop = min(self.n, max(b, self.hi + self.block), lo + len(self.buf))
+            self._fill(self.hi, stop, self.buf[keep:keep + stop - self.hi])
+            self.hi = stop
+        data = self.buf[lo - self.lo:b - self.lo]
         return data[a - lo:], data[:a - lo]
+
+    def _fill(self, start: int, stop: int, out: np.ndarray) -> None:
+        if hasattr(self.frames, "read_into"):
+            self.frames.read_into(start, stop, out)
+        else:
+            out[...] = self.frames[start:stop]
 
 
 def _bar(total: int, progress: bool):

@@ -69,6 +69,14 @@ class FrameSource:
     def _read(self, start: int, stop: int) -> np.ndarray:
         raise NotImplementedError
 
+    #: frames per read that the storage favours (HDF5: the chunk length along time)
+    block_frames: int = 1
+
+    def read_into(self, start: int, stop: int, out: np.ndarray) -> None:
+        """Read frames [start, stop) into ``out`` (shape (stop - start, H, W), the source's
+        dtype) without allocating; for streaming readers that reuse one buffer."""
+        out[...] = self._read(start, stop)
+
     def windows(self, length: int, step: int | None = None):
         """Yield ``(start, frames)`` over consecutive windows of ``length`` frames.
 
@@ -138,6 +146,7 @@ class HDF5Source(FrameSource):
             rate = self._file.attrs.get("frame_rate")
             self.frame_rate = None if rate is None else float(rate)
             self.truth = _read_truth(self._file, self.path)
+            self.block_frames = int(self._dset.chunks[0]) if self._dset.chunks else 1
             self._dset[0, :1, :1]  # a truncated file fails here, not mid-run
         except InputError:
             self._file.close()
@@ -167,6 +176,14 @@ class HDF5Source(FrameSource):
     def _read(self, start, stop):
         try:
             return self._dset[start:stop]
+        except (OSError, ValueError) as exc:
+            raise InputError(f"corrupt or truncated HDF5 file ({_short(exc)})", self.path) from None
+
+    def read_into(self, start, stop, out):
+        if stop <= start:
+            return
+        try:
+            self._dset.read_direct(out, np.s_[start:stop], np.s_[0:stop - start])
         except (OSError, ValueError) as exc:
             raise InputError(f"corrupt or truncated HDF5 file ({_short(exc)})", self.path) from None
 
