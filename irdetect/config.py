@@ -32,7 +32,7 @@ from irdetect.errors import InputError
 class SuppressConfig:
     """Clutter suppression (``irdetect.suppress.suppress``)."""
 
-    method: str = "temporal"
+    method: str = "auto"
     size: int = 9
     guard: int = 1
     history: int = 12
@@ -103,7 +103,7 @@ class InitiateConfig:
     parallel_fraction: float = 0.8
     q1: float = 0.25
     q2: float = 0.65
-    sigma: float = 1.0
+    sigma: float = 1.5
     sigma_range: float = 0.0
     sigma_azimuth: float = 0.0
     radius_rho: float = 3.0
@@ -120,6 +120,7 @@ class InitiateConfig:
     min_hits: float = 0.5
     confirm_m: int = 3
     confirm_n: int = 4
+    fit_confidence: float = 0.99
 
 
 # --- frame-by-frame tracker (cheng; issue 6) -------------------------------------------

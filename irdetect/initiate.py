@@ -35,6 +35,7 @@ import logging
 import math
 
 import numpy as np
+from scipy.stats import chi2 as chi2_dist
 
 from irdetect import tables
 from irdetect.cluster import subtractive_cluster
@@ -49,10 +50,10 @@ METHODS = ("hough-sc", "hough", "nms", "opencv", "parallel-hough", "fuzzy-parall
 #: Defaults of every initiation parameter (``InitiateConfig`` mirrors them).
 DEFAULTS = dict(
     method="hough-sc", n_theta=90, rho_step=2.0, tile=0.0, vote_fraction=0.6,
-    parallel_fraction=0.8, q1=0.25, q2=0.65, sigma=1.0, sigma_range=0.0, sigma_azimuth=0.0,
+    parallel_fraction=0.8, q1=0.25, q2=0.65, sigma=1.5, sigma_range=0.0, sigma_azimuth=0.0,
     radius_rho=3.0, radius_theta=4.0, squash=1.25, accept_ratio=0.5, reject_ratio=0.15,
     merge_peaks=False, nms_size=5, verify=True, gate=3.0, v_min=0.0, v_max=0.0,
-    min_hits=0.5, confirm_m=3, confirm_n=4,
+    min_hits=0.5, confirm_m=3, confirm_n=4, fit_confidence=0.99,
 )
 
 #: Internal result: one row per track, times in the input's unit.
@@ -169,7 +170,8 @@ def initiate_detections(detections, *, method: str = DEFAULTS["method"],
                         gate: float = DEFAULTS["gate"], v_min: float = DEFAULTS["v_min"],
                         v_max: float = DEFAULTS["v_max"], min_hits: float = DEFAULTS["min_hits"],
                         confirm_m: int = DEFAULTS["confirm_m"],
-                        confirm_n: int = DEFAULTS["confirm_n"]) -> np.ndarray:
+                        confirm_n: int = DEFAULTS["confirm_n"],
+                        fit_confidence: float = DEFAULTS["fit_confidence"]) -> np.ndarray:
     """Initiate tracks from the confirmed detections of an image sequence.
 
     Each detection is one measurement at time (frame_start + frame_end) / 2, in the "scan"
@@ -309,7 +311,8 @@ def _check_params(params: dict) -> dict:
     for name in ("tile", "sigma_range", "sigma_azimuth", "v_min", "v_max"):
         if not (math.isfinite(p[name]) and p[name] >= 0):
             raise ValueError(f"{name} must be >= 0, got {p[name]!r}")
-    for name in ("vote_fraction", "parallel_fraction", "q1", "q2", "min_hits"):
+    for name in ("vote_fraction", "parallel_fraction", "q1", "q2", "min_hits",
+                 "fit_confidence"):
         if not 0 <= p[name] <= 1:
             raise ValueError(f"{name} must lie in [0, 1], got {p[name]!r}")
     if not (0 < p["reject_ratio"] <= p["accept_ratio"] <= 1):
@@ -394,6 +397,19 @@ class _Window:
                              sigma_range=p["sigma_range"], sigma_azimuth=p["sigma_azimuth"],
                              range_=self.polar[0][idx], azimuth=self.polar[1][idx])
         return np.full((idx.size, np.size(theta)), p["sigma"])
+
+    def error_axes(self, idx, p):
+        """Error ellipse of measurements idx: (cos, sin) of the first axis, its sigma and
+        the sigma across it. Polar: range and cross-range (r sigma_azimuth, floored at a
+        tenth of sigma_range so a measurement at the radar stays finite); else a circle
+        of ``sigma``."""
+        if self.polar is not None and (p["sigma_range"] > 0 or p["sigma_azimuth"] > 0):
+            r, b = self.polar[0][idx], self.polar[1][idx]
+            floor = 0.1 * max(p["sigma_range"], p["sigma"])
+            return (np.cos(b), np.sin(b), np.maximum(p["sigma_range"], floor),
+                    np.maximum(r * p["sigma_azimuth"], floor))
+        one = np.ones(np.shape(idx))
+        return one, 0 * one, p["sigma"] * one, p["sigma"] * one
 
     def pair_sigma_rho(self, idx, theta, p):
         """rho sigma of measurement idx[i] at angle theta[i] (eq. 6 when polar)."""
@@ -627,6 +643,7 @@ def _cv_batch(win: _Window, ptr, mem, cells, theta, K, p, max_tracks: int = 4):
     x, y, t = win.x[ii], win.y[ii], win.t[ii]
     sc = win.sidx[ii]
     sig = win.sigma[ii]
+    axes = win.error_axes(ii, p)                  # per-measurement error ellipse
     S = win.n_scans
     onehot = ((sc[:, :, None] == np.arange(S)[None, None, :]) & valid[:, :, None])
     onehot_f = onehot.astype(np.float32)
@@ -663,13 +680,17 @@ def _cv_batch(win: _Window, ptr, mem, cells, theta, K, p, max_tracks: int = 4):
         cand = inl[br, best] & ~done[:, None]                      # (B, K)
         members = _one_per_scan(np.where(cand, res[br, best], np.inf), onehot)
         for _r in range(2):                                        # LS refinement
-            e = _fit_error(x, y, t, members)
-            members = _one_per_scan(np.where(pool & (e <= gate * sig * 1.15), e, np.inf),
-                                    onehot)
+            e = _fit_error(x, y, t, members, axes)
+            members = _one_per_scan(np.where(pool & (e <= gate * 1.15), e, np.inf), onehot)
         n_m = members.sum(axis=1)
         vx, vy = _fit_velocity(x, y, t, members)
         speed = np.hypot(vx, vy)
         good = (n_m >= need) & ~done & (speed >= vmin) & ((vmax <= 0) | (speed <= vmax))
+        if p["fit_confidence"] < 1:
+            # chi-square of the fit in the measurements' own error terms, 2n - 4 dof
+            chi2 = np.where(members, _fit_error(x, y, t, members, axes) ** 2, 0.0).sum(axis=1)
+            limit = chi2_dist.ppf(p["fit_confidence"], np.maximum(2 * n_m - 4, 1))
+            good &= (n_m < 3) | (chi2 <= limit)
         for b in np.flatnonzero(good):                 # accepted tracks (a handful)
             src.append(int(cells[b]))
             out.append(idx[b][members[b]])
@@ -706,12 +727,14 @@ def _fit_velocity(x, y, t, m):
     return _fit_moments(x, y, t, m)[3:]
 
 
-def _fit_error(x, y, t, m):
-    """(B, K) 2-D distance of every measurement to its cell's CV fit of the members m."""
+def _fit_error(x, y, t, m, axes):
+    """(B, K) normalised distance of every measurement to its cell's CV fit of the
+    members m: sqrt(e_r^2 / s_r^2 + e_c^2 / s_c^2), e split along the error axes."""
     tm, xm, ym, vx, vy = _fit_moments(x, y, t, m)
     ex = x - (xm[:, None] + vx[:, None] * (t - tm[:, None]))
     ey = y - (ym[:, None] + vy[:, None] * (t - tm[:, None]))
-    e = np.hypot(ex, ey)
+    cx, sx, s_r, s_c = axes
+    e = np.hypot((ex * cx + ey * sx) / s_r, (ey * cx - ex * sx) / s_c)
     return np.where(m.sum(axis=1)[:, None] >= 2, e, np.inf)
 
 

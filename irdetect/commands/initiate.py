@@ -50,8 +50,9 @@ def _params(args, attrs) -> dict:
         except tomllib.TOMLDecodeError as exc:
             raise InputError(f"not a valid TOML file ({exc})", args.config) from None
     elif attrs.get("scenario"):
-        from irdetect.simulate.scans import PRESETS, load_scan_scenario
-        if (PRESETS / f"{attrs['scenario']}.toml").is_file():
+        from irdetect.simulate.presets import preset_kind
+        from irdetect.simulate.scans import load_scan_scenario
+        if preset_kind(attrs["scenario"]) == "scans":
             _, data = load_scan_scenario(attrs["scenario"])
             log.info("initiation parameters of the %s preset", attrs["scenario"])
     if args.method:

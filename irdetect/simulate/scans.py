@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import math
 import os
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,8 +27,7 @@ import numpy as np
 from irdetect import tables
 from irdetect.config import from_dict
 from irdetect.errors import InputError
-
-PRESETS = Path(__file__).resolve().parents[2] / "data" / "presets"
+from irdetect.simulate.presets import read_preset
 SCAN_SCENARIOS = ("zhang2010", "liang2015")
 
 
@@ -66,33 +64,12 @@ def load_scan_scenario(name: str | os.PathLike = "zhang2010", **overrides):
     InputError
         Unknown preset, not a scans preset, unknown key, bad value.
     """
-    path = Path(name)
-    if path.suffix != ".toml":
-        path = PRESETS / f"{name}.toml"
-    if not path.is_file():
-        known = sorted(p.stem for p in PRESETS.glob("*.toml") if _kind(p) == "scans")
-        raise InputError(f"unknown scans scenario (presets: {', '.join(known)})", name)
-    try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"not a valid TOML file ({exc})", path) from None
-    data.pop("description", None)
-    if data.pop("kind", "sequence") != "scans":
-        raise InputError("this preset is not a scans scenario", path)
+    data, path = read_preset(name, "scans")
     initiate = data.pop("initiate", {})
     data.update({k: v for k, v in overrides.items() if v is not None})
     s = from_dict(ScanScenario, data, where="scenario", path=path)
     _validate(s, path)
     return s, initiate
-
-
-def _kind(path):
-    try:
-        with open(path, "rb") as fh:
-            return tomllib.load(fh).get("kind", "sequence")
-    except (OSError, tomllib.TOMLDecodeError):
-        return None
 
 
 def _validate(s: ScanScenario, path=None):
