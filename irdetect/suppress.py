@@ -27,6 +27,11 @@ four suppressors and picks the default by measurement (``scripts/bench_detection
     3x3 high-pass over the available frames and removed. Keeps a target that moves
     relative to the scene by more than about ``tolerance + 2`` px over ``gap`` frames,
     even when the camera holds it still in the image.
+``auto``
+    ``temporal`` while the camera holds still, ``registered`` when it moves: per call
+    (one window when streaming), the shift of the last frame against the oldest and the
+    middle frame held (``previous`` and ``frames``) is measured; if either reaches
+    ``STILL_PX`` px the camera is taken to move.
 
 All arithmetic is float32 with OpenCV filters; a stack (T, H, W) is processed frame by
 frame inside one call (no Python work per pixel).
@@ -37,13 +42,13 @@ from __future__ import annotations
 import numpy as np
 import cv2
 
-METHODS = ("tophat", "maxmean", "maxmedian", "temporal", "registered", "none")
+METHODS = ("tophat", "maxmean", "maxmedian", "temporal", "registered", "auto", "none")
 
 #: 1.4826 * MAD is the standard deviation of a Gaussian.
 MAD_TO_SIGMA = 1.4826
 
 
-def suppress(frames, previous=None, *, method: str = "temporal", size: int = 9,
+def suppress(frames, previous=None, *, method: str = "auto", size: int = 9,
              guard: int = 1, history: int = 12, gap: int = 8, tolerance: int = 1,
              fixed_pattern: bool = True, samples: int = 3) -> np.ndarray:
     """Suppress the background of one frame or a stack of frames.
@@ -56,7 +61,7 @@ def suppress(frames, previous=None, *, method: str = "temporal", size: int = 9,
     previous : ndarray of shape (P, H, W), optional
         ``temporal`` / ``registered``: raw frames just before ``frames[0]`` (the tail of
         the previous block when streaming); only the last ``past_frames(...)`` are used.
-    method : {"tophat", "maxmean", "maxmedian", "temporal", "registered", "none"}
+    method : {"tophat", "maxmean", "maxmedian", "temporal", "registered", "auto", "none"}
         The suppressor (see the module docstring).
     size : int
         Odd structuring-element / line length in pixels (>= 3). For ``tophat`` it must
@@ -97,8 +102,8 @@ def suppress(frames, previous=None, *, method: str = "temporal", size: int = 9,
     background B_t = dilate(mean_l warp(F_{t-l}, d_{t-l,t})) over ``samples`` lags l
     evenly spread in [gap, gap + history) that exist, d the shift of frame t against
     frame t-l by ``cv2.phaseCorrelate`` (Hanning window) measured directly for each pair
-    (a frame with no past that old uses the oldest frame there is; the first frame of a
-    sequence gives residual 0); pixels that no shifted past frame covers give residual 0. Translation only (no
+    (the first ``gap`` frames of a sequence, with no past that old, use the ``size``
+    top-hat instead); pixels that no shifted past frame covers give residual 0. Translation only (no
     rotation or parallax; the dilation absorbs up to ``tolerance`` px of either).
     Fixed pattern: P = median over the frames (``previous`` and ``frames``) of
     F - medianBlur3(F), subtracted from every frame; a target sits on the same pixel
@@ -131,7 +136,7 @@ def suppress(frames, previous=None, *, method: str = "temporal", size: int = 9,
         raise ValueError(f"frames must have shape (H, W) or (T, H, W), got {arr.shape}")
     single = arr.ndim == 2
     stack = _clean(arr[None] if single else arr)
-    if method in ("temporal", "registered"):
+    if method in ("temporal", "registered", "auto"):
         past = None
         keep = past_frames(method, history=history, gap=gap)
         if previous is not None:
@@ -140,11 +145,15 @@ def suppress(frames, previous=None, *, method: str = "temporal", size: int = 9,
                 raise ValueError(f"previous must have shape (P, {stack.shape[1]}, "
                                  f"{stack.shape[2]}), got {past.shape}")
             past = _clean(past[-keep:]) if len(past) else None
+        if method == "auto":
+            method = "registered" if camera_moves(stack, past) else "temporal"
+            if method == "temporal" and past is not None:
+                past = past[-history:]
         if method == "temporal":
             out = _temporal(stack, int(history), int(size), past)
         else:
             out = _registered(stack, past, int(history), int(gap), int(tolerance),
-                              bool(fixed_pattern), int(samples))
+                              bool(fixed_pattern), int(samples), int(size))
     elif method == "none":
         out = stack.copy()
     else:
@@ -161,7 +170,39 @@ def past_frames(method: str, *, history: int = 12, gap: int = 8, **_) -> int:
         return int(history)
     if method == "registered":
         return int(gap) + int(history) - 1
+    if method == "auto":
+        return max(int(history), int(gap) + int(history) - 1)
     return 0
+
+
+#: ``auto``: a shift of this many px or more within the frames held means a moving camera
+STILL_PX = 0.5
+
+
+def camera_moves(frames, previous=None) -> bool:
+    """Whether the global shift within ``previous`` + ``frames`` reaches ``STILL_PX`` px.
+
+    Parameters
+    ----------
+    frames : ndarray of shape (T, H, W)
+    previous : ndarray of shape (P, H, W), optional
+
+    Returns
+    -------
+    bool
+        True when the last frame is shifted by >= ``STILL_PX`` px (either axis) against
+        the oldest or the middle frame (two phase correlations).
+    """
+    full = np.asarray(frames, dtype=np.float32)
+    if previous is not None and len(previous):
+        full = np.concatenate([np.asarray(previous, dtype=np.float32), full])
+    full = _clean(full)
+    if len(full) < 2:
+        return False
+    reg = _Registrar(full)
+    last = len(full) - 1
+    return any(max(abs(d) for d in reg.shift(ref, last)) >= STILL_PX
+               for ref in {0, last // 2} if ref < last)
 
 
 def noise_sigma(residual, *, tile: int | None = None, sample: int = 2) -> np.ndarray | float:
@@ -367,10 +408,7 @@ class _Registrar:
 def registered_lags(i: int, *, history: int, gap: int, samples: int) -> list[int]:
     """Lags of the past frames in the background of frame ``i`` (frames 0..i-1 exist)."""
     span = np.unique(np.round(np.linspace(gap, gap + history - 1, samples)).astype(int))
-    lags = [int(lag) for lag in span if lag <= i]
-    if not lags and i >= 1:   # too early for the full gap: the oldest frame there is
-        lags = [i]
-    return lags
+    return [int(lag) for lag in span if lag <= i]
 
 
 def _fixed_pattern(full: np.ndarray) -> np.ndarray:
@@ -381,7 +419,7 @@ def _fixed_pattern(full: np.ndarray) -> np.ndarray:
     return np.median(hp, axis=0).astype(np.float32)
 
 
-def _registered(stack, past, history, gap, tolerance, fixed_pattern, samples):
+def _registered(stack, past, history, gap, tolerance, fixed_pattern, samples, size):
     n_past = 0 if past is None else len(past)
     full = stack if past is None else np.concatenate([past, stack])
     if fixed_pattern and len(full) >= 3:
@@ -394,7 +432,10 @@ def _registered(stack, past, history, gap, tolerance, fixed_pattern, samples):
         i = n_past + t
         lags = registered_lags(i, history=history, gap=gap, samples=samples)
         if not lags:
-            continue          # the very first frame of a sequence: no background
+            # the first `gap` frames of a sequence have no past that old: a spatial
+            # top-hat stands in (its clutter is not confirmed by the later windows)
+            out[t] = _tophat(full[i], size, 0)
+            continue
         total = np.zeros((h, w), np.float32)
         count = np.zeros((h, w), np.float32)
         for lag in lags:      # a loop over a handful of past frames

@@ -121,7 +121,14 @@ def test_real_sequence_easy1():
     with open_sequence(folder / "frames") as src:
         frames = src[:]
     truth = read_point_annotations(folder / "truth.txt", len(frames))
-    out = detect_sequence(frames)
+    # easy1's target holds still in the scene (0.5 px per 12 frames against the
+    # background) while the camera drifts; the default ("auto" -> registered, issue 8)
+    # rightly treats it as scene-static structure, so this test pins the temporal
+    # suppressor, which sees it move in the image
+    config = ProcessConfig()
+    config = dataclasses.replace(config, suppress=dataclasses.replace(config.suppress,
+                                                                     method="temporal"))
+    out = detect_sequence(frames, config)
     m = score_detections(out["detections"], truth, n_frames=len(frames), length=12, step=12,
                          shape=frames.shape[1:], gate=5.0)   # gate of its README
     assert m["targets"] == 3 and m["detected"] >= 2
