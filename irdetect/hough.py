@@ -253,15 +253,15 @@ def fuzzy_hough_transform(x, y, *, grid: HoughGrid, sigma_rho, support: float = 
     kmax = int(half.max())
     base = np.rint(pos).astype(np.int64)
     size = n_groups * grid.n_rho * grid.n_theta
-    acc = np.zeros(size)
     n = np.arange(grid.n_theta)[None, :]
+    lins, mus = [], []
     for k in range(-kmax, kmax + 1):                       # a handful of offsets, vectorised
         j = base + k
         d = (j - pos) * grid.drho
         ok = (np.abs(k) <= half) & (j >= 0) & (j < grid.n_rho) & (np.abs(d) <= support * s)
-        mu = np.exp(-0.5 * (d / s) ** 2)
-        lin = (g[:, None] * grid.n_rho + j) * grid.n_theta + n
-        acc += np.bincount(lin[ok], weights=mu[ok], minlength=size)
+        lins.append(((g[:, None] * grid.n_rho + j) * grid.n_theta + n)[ok])
+        mus.append(np.exp(-0.5 * (d[ok] / s[ok]) ** 2))
+    acc = np.bincount(np.concatenate(lins), weights=np.concatenate(mus), minlength=size)
     return acc.reshape((n_groups,) + grid.shape)
 
 
@@ -312,11 +312,10 @@ def nms_peaks(acc: np.ndarray, *, size: int = 3, threshold: float = 0.0) -> np.n
     largest among the live cells of its neighbourhood is kept by the greedy order too
     (nothing stronger near it can be kept before it, and the neighbourhood relation is
     symmetric, wrap included), so every round keeps all such cells at once and clears
-    their neighbourhoods. The result is the greedy one exactly; the number of rounds is
-    small (a few per peak cluster), each a maximum filter over the accumulator.
+    their neighbourhoods. The result is the greedy one exactly. Only the cells above
+    ``threshold`` take part: their neighbour pairs are found once (sorted-index lookup),
+    and each round is a segment maximum over those pairs.
     """
-    from scipy.ndimage import maximum_filter
-
     if int(size) != size or size < 1:
         raise ValueError(f"size must be a positive integer, got {size}")
     a = np.asarray(acc, float)
@@ -326,36 +325,45 @@ def nms_peaks(acc: np.ndarray, *, size: int = 3, threshold: float = 0.0) -> np.n
     if a.ndim != 3:
         raise ValueError(f"acc must have 2 or 3 dimensions, got shape {np.shape(acc)}")
     G, n_rho, n_theta = a.shape
-    flat = np.flatnonzero(a > threshold)
-    order = flat[np.argsort(-a.ravel()[flat], kind="stable")]
-    rank = np.zeros(a.size, np.int64)
-    rank[order] = np.arange(order.size, 0, -1)       # strongest: largest rank
-    rank = rank.reshape(a.shape)
-    strength = rank.ravel().copy()
+    flat = np.flatnonzero(a > threshold)                  # candidates, ascending
+    order = np.argsort(-a.ravel()[flat], kind="stable")
+    strength = np.empty(flat.size, np.int64)
+    strength[order] = np.arange(flat.size, 0, -1)        # strongest: largest, no ties
+    g, j, n = np.unravel_index(flat, a.shape)
+    # neighbour pairs between candidates (theta wraps with rho mirrored)
     h = size // 2
-    hw = min(h, n_theta)
-
-    def padded(b):
-        # theta wrap: the columns beyond pi are the first ones with rho mirrored
-        if hw == 0:
-            return b
-        return np.concatenate([b[:, ::-1, n_theta - hw:], b, b[:, ::-1, :hw]], axis=2)
-
-    def crop(b):
-        return b[:, :, hw:hw + n_theta] if hw else b
-
-    fp = (1, size, size)
+    ii, nb = [], []
+    for dj in range(-h, h + 1):
+        for dn in range(-h, h + 1):
+            if dj == 0 and dn == 0:
+                continue
+            nn = n + dn
+            wrap = (nn < 0) | (nn >= n_theta)
+            jj = np.where(wrap, n_rho - 1 - (j + dj), j + dj)
+            ok = (jj >= 0) & (jj < n_rho)
+            key = (g * n_rho + jj) * n_theta + nn % n_theta
+            pos = np.minimum(np.searchsorted(flat, key), max(flat.size - 1, 0))
+            hit = ok & (flat[pos] == key) if flat.size else ok
+            ii.append(np.flatnonzero(hit))
+            nb.append(pos[hit])
+    ii = np.concatenate(ii) if ii else np.zeros(0, np.int64)
+    nb = np.concatenate(nb) if nb else np.zeros(0, np.int64)
+    o = np.argsort(ii, kind="stable")
+    ii, nb = ii[o], nb[o]
+    has = np.unique(ii)
+    starts = np.searchsorted(ii, has)
+    alive = np.ones(flat.size, bool)
     kept = []
-    while rank.any():
-        local = crop(maximum_filter(padded(rank), size=fp, mode="constant", cval=0))
-        sel = (rank > 0) & (rank == local)
+    while alive.any():
+        best_nb = np.zeros(flat.size, np.int64)
+        if ii.size:
+            best_nb[has] = np.maximum.reduceat(np.where(alive[nb], strength[nb], 0), starts)
+        sel = alive & (strength > best_nb)
         kept.append(np.flatnonzero(sel))
-        gone = crop(maximum_filter(padded(sel.view(np.uint8)), size=fp, mode="constant",
-                                   cval=0)) > 0
-        rank[gone] = 0
+        alive[nb[sel[ii]]] = False
+        alive[sel] = False
     idx = np.concatenate(kept) if kept else np.zeros(0, np.int64)
     idx = idx[np.argsort(-strength[idx], kind="stable")]
-    g, j, n = np.unravel_index(idx, a.shape)
-    out = np.column_stack([g, j, n]).astype(np.int64).reshape(-1, 3)
+    out = np.column_stack([g[idx], j[idx], n[idx]]).astype(np.int64).reshape(-1, 3)
     return out[:, 1:] if single else out
 
