@@ -7,6 +7,9 @@ Each section scores one table when the results file holds it:
   detection   /detections  Pd per window (one-to-one within --gate px of the true path),
                            false detections per window and per megapixel-window,
                            pixel-level Fa (IRSTD convention, 3x3 px per detection)
+  track initiation /tracks   Pt per target and overall, Pc, velocity error (lines within
+                           3 sigma of every true position, one-to-one; docs/initiation.md);
+                           /scan_tracks of irdetect initiate: the same per window, OSPA, GOSPA
 
 Other sections (initiated tracks, frame-by-frame tracks) register in ``SECTIONS``.
 """
@@ -52,9 +55,20 @@ def _mot_section(results, truth, ctx) -> dict:
 #: Sections run in order, each when its table is in the results file. Add yours here:
 #: ``(title, table name, function(results, truth, context) -> dict of scores)``; the
 #: context holds n_frames, length, step, shape (H, W), gate, frame_rate.
+def _initiation_section(results, truth, ctx) -> dict:
+    """Pt per target and overall, Pc and velocity error of /tracks (irdetect process;
+    the frame-by-frame tracker's /tracks, beside /track_points, are scored by CLEAR-MOT)."""
+    from irdetect.metrics.initiation import evaluate_image_tracks
+
+    if "track_points" in results:
+        return {"skipped": "tracks of irdetect track: see tracking (CLEAR-MOT)"}
+    return evaluate_image_tracks(results, truth)
+
+
 SECTIONS: list[tuple[str, str, callable]] = [
     ("detection", "detections", _detection_section),
     ("tracking (CLEAR-MOT)", "track_points", _mot_section),
+    ("track initiation", "tracks", _initiation_section),
 ]
 
 
@@ -70,6 +84,9 @@ def evaluate(results_path, truth_path=None, *, gate: float = 3.0) -> dict:
     if not math.isfinite(gate) or gate <= 0:
         raise InputError(f"--gate must be a positive number, got {gate}")
     results = read_results(results_path)
+    if "scan_tracks" in results:              # irdetect initiate on scans: scans truth
+        from irdetect.metrics.initiation import evaluate_scan_results
+        return {"track initiation (scans)": evaluate_scan_results(results, truth_path)}
     truth, seq_shape = _load_truth(results, results_path, truth_path)
     attrs = results.attrs
     cfg = results.config.get("combine", {})

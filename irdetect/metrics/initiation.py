@@ -197,3 +197,107 @@ def score_image_tracks(tracks, truth, *, sigma: float = 1.5, k: float = 3.0,
             "pt_overall": float((m >= 0).mean()) if len(tg) else float("nan"),
             "pc": n_false / len(tracks) if len(tracks) else 0.0,
             "n_tracks": len(tracks), "n_false": n_false, "speed_error": np.array(err)}
+
+
+def _summary(targets, pt, pc, n_tracks, n_false, speed_error) -> dict:
+    out = {f"pt target {int(t)}": float(v) for t, v in zip(targets, pt)}
+    out.update({"pt_overall": float(np.mean(pt)) if len(pt) else float("nan"),
+                "pc": float(pc), "n_tracks": int(n_tracks), "n_false": int(n_false),
+                "speed_error_median": float(np.median(speed_error)) if len(speed_error)
+                else float("nan"),
+                "speed_error_max": float(np.max(speed_error)) if len(speed_error)
+                else float("nan")})
+    return out
+
+
+def evaluate_image_tracks(results, truth, *, sigma: float | None = None) -> dict:
+    """Scores of the ``/tracks`` of an ``irdetect process`` results file.
+
+    Parameters
+    ----------
+    results : irdetect.io.Results
+        Results holding ``/tracks`` (``tables.TRACK``).
+    truth : structured ndarray
+        ``tables.TRUTH`` rows of the sequence.
+    sigma : float, optional
+        Detection position error in px (default: the run's ``initiate.sigma``, else 1.5).
+
+    Returns
+    -------
+    dict
+        ``pt target N`` (1 when target N is initiated), ``pt_overall``, ``pc``,
+        ``n_tracks``, ``n_false``, ``speed_error_median`` / ``_max`` (relative).
+    """
+    if sigma is None:
+        sigma = float(results.config.get("initiate", {}).get("sigma", 1.5))
+    s = score_image_tracks(results["tracks"], truth, sigma=sigma)
+    return _summary(s["targets"], s["pt"], s["pc"], s["n_tracks"], s["n_false"],
+                    s["speed_error"])
+
+
+def evaluate_scan_results(results, truth_path=None) -> dict:
+    """Scores of the ``/scan_tracks`` of an ``irdetect initiate`` results file.
+
+    Truth: the scans file ``truth_path`` (its ``/truth``), else the results' own
+    ``/scan_truth``, else the ``/truth`` of the input scans file. Windows, scan times and
+    the measurement error come from the results' attributes (``windows``, ``scan_times``,
+    ``sigma`` or ``sigma_range`` / ``sigma_azimuth`` for polar scans).
+
+    Returns
+    -------
+    dict
+        ``pt target N`` (share of windows in which target N is initiated), ``pt_overall``,
+        ``pc``, ``n_tracks``, ``n_false``, ``ospa_mean``, ``gospa_mean`` (m, at each
+        window's last scan), ``speed_error_median`` / ``_max`` (relative).
+
+    Raises
+    ------
+    InputError
+        No truth, or attributes missing (not written by ``irdetect initiate``).
+    """
+    import json
+    from pathlib import Path
+
+    from irdetect.errors import InputError
+    from irdetect.io.scans import read_scans
+
+    truth = None
+    if truth_path is not None:
+        truth = read_scans(truth_path)[1]
+        if truth is None:
+            raise InputError("has no /truth to score against", truth_path)
+    elif "scan_truth" in results:
+        truth = results["scan_truth"]
+    else:
+        name = results.attrs.get("input")
+        for path in filter(None, [name and Path(name), name and Path(results.path).parent / name]):
+            if path.exists():
+                truth = read_scans(path)[1]
+                break
+        if truth is None:
+            raise InputError("no --truth given and neither the results nor their input "
+                             "hold scan truth", results.path)
+    attrs = results.attrs
+    try:
+        windows = [tuple(w) for w in json.loads(attrs["windows"])]
+        scan_times = {int(k): float(v) for k, v in json.loads(attrs["scan_times"]).items()}
+    except (KeyError, ValueError):
+        raise InputError("lacks the windows / scan_times attributes of irdetect initiate",
+                         results.path) from None
+    sr, sa = attrs.get("sigma_range"), attrs.get("sigma_azimuth")
+    if sr is not None and sa is not None and float(sa) > 0:
+        def sigma(x, y):
+            return np.maximum(float(sr), np.hypot(x, y) * float(sa))
+    else:
+        sigma = float(attrs.get("sigma", results.config.get("initiate", {}).get("sigma", 1.0)))
+    res = score_scan_tracks(results["scan_tracks"], truth, windows=windows,
+                            scan_times=scan_times, sigma=sigma)
+    present = res["present"].sum(axis=0)
+    pt = res["initiated"].sum(axis=0) / np.maximum(present, 1)
+    n_tr, n_f = int(res["n_tracks"].sum()), int(res["n_false"].sum())
+    out = _summary(res["targets"], pt, n_f / n_tr if n_tr else 0.0, n_tr, n_f,
+                   res["speed_error"])
+    out["pt_overall"] = float(res["initiated"].sum() / max(res["present"].sum(), 1))
+    out["ospa_mean"] = float(res["ospa"].mean()) if len(windows) else float("nan")
+    out["gospa_mean"] = float(res["gospa"].mean()) if len(windows) else float("nan")
+    return out
