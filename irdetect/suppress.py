@@ -193,15 +193,17 @@ def camera_moves(frames, previous=None) -> bool:
         True when the last frame is shifted by >= ``STILL_PX`` px (either axis) against
         the oldest or the middle frame (two phase correlations).
     """
-    full = np.asarray(frames, dtype=np.float32)
-    if previous is not None and len(previous):
-        full = np.concatenate([np.asarray(previous, dtype=np.float32), full])
-    full = _clean(full)
-    if len(full) < 2:
+    frames = np.asarray(frames)
+    n_past = 0 if previous is None else len(previous)
+    last = n_past + len(frames) - 1
+    if last < 1:
         return False
-    reg = _Registrar(full)
-    last = len(full) - 1
-    return any(max(abs(d) for d in reg.shift(ref, last)) >= STILL_PX
+    # only the 3 frames compared are converted and cleaned (not the whole window)
+    used = sorted({0, last // 2, last})
+    pick = [np.asarray(previous[i]) if i < n_past else frames[i - n_past] for i in used]
+    reg = _Registrar(_clean(np.stack(pick)))
+    at = {i: k for k, i in enumerate(used)}
+    return any(max(abs(d) for d in reg.shift(at[ref], at[last])) >= STILL_PX
                for ref in {0, last // 2} if ref < last)
 
 
@@ -385,13 +387,19 @@ class _Registrar:
         t, h, w = frames.shape
         self.frames = frames
         self.ok = h >= 8 and w >= 8
-        self.flat = frames.reshape(t, -1).std(axis=1) <= 0
+        self._flat: dict[int, bool] = {}
         self.limit = min(h, w) / 4.0
         self.win = cv2.createHanningWindow((w, h), cv2.CV_32F) if self.ok else None
 
+    def flat(self, i: int) -> bool:
+        """Frame ``i`` is constant (std 0); computed for the frames actually used."""
+        if i not in self._flat:
+            self._flat[i] = bool(self.frames[i].std() <= 0)
+        return self._flat[i]
+
     def shift(self, ref: int, cur: int) -> tuple[float, float]:
         """(dx, dy) such that frame ``cur`` ~ frame ``ref`` moved by (dx, dy)."""
-        if not self.ok or self.flat[ref] or self.flat[cur]:
+        if not self.ok or self.flat(ref) or self.flat(cur):
             return 0.0, 0.0
         # copies: OpenCV 5.0's phaseCorrelate multiplies the window into its inputs
         d, response = cv2.phaseCorrelate(self.frames[ref].copy(), self.frames[cur].copy(),
@@ -416,7 +424,16 @@ def _fixed_pattern(full: np.ndarray) -> np.ndarray:
     hp = np.empty_like(full)
     for i in range(len(full)):
         hp[i] = full[i] - cv2.medianBlur(full[i], 3)
-    return np.median(hp, axis=0).astype(np.float32)
+    return _median_axis0(hp)
+
+
+def _median_axis0(stack: np.ndarray) -> np.ndarray:
+    """``np.median(stack, axis=0)`` (same values) by sorting each pixel's contiguous
+    time series: about 2x faster than the partition along the outer axis."""
+    t = len(stack)
+    v = np.sort(stack.reshape(t, -1).T, axis=1)
+    med = v[:, t // 2] if t % 2 else (v[:, t // 2 - 1] + v[:, t // 2]) / v.dtype.type(2)
+    return med.reshape(stack.shape[1:]).astype(np.float32)
 
 
 def _registered(stack, past, history, gap, tolerance, fixed_pattern, samples, size):
