@@ -14,8 +14,10 @@ from __future__ import annotations
 
 import logging
 import os
+import threading
 import time
 from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict
 from pathlib import Path
 from typing import Iterator
@@ -35,6 +37,7 @@ log = logging.getLogger(__name__)
 
 #: combined frames the correlation needs
 N_CORRELATE = 3
+_TIMINGS_LOCK = threading.Lock()
 
 
 def min_frames(config: ProcessConfig | None = None) -> int:
@@ -44,7 +47,8 @@ def min_frames(config: ProcessConfig | None = None) -> int:
 
 
 def iter_results(frames, config: ProcessConfig | None = None, *,
-                 progress: bool = False) -> Iterator[dict]:
+                 progress: bool = False, workers: int = 1,
+                 timings: dict | None = None) -> Iterator[dict]:
     """Run the front end over a sequence, yielding results as combined frames complete.
 
     Parameters
@@ -55,6 +59,13 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
         Stage parameters (defaults when None).
     progress : bool
         Show a tqdm bar over frames.
+    workers : int
+        Threads that run suppression, combination, detection and fusion of several
+        windows at once (>= 1; OpenCV and numpy release the GIL); reading and
+        correlation stay in order on the calling thread. The results do not depend on it.
+    timings : dict, optional
+        When given, seconds spent per stage are added to it under ``read``, ``suppress``,
+        ``combine``, ``detect``, ``fuse``, ``correlate`` (summed over threads).
 
     Yields
     ------
@@ -79,31 +90,47 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
     if n_frames < need:
         raise ValueError(f"the sequence has {n_frames} frames; detection needs at least {need} "
                          f"(3 combined frames of {cc.length} frames, step {cc.step})")
+    if int(workers) != workers or workers < 1:
+        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     starts = window_starts(n_frames, length=cc.length, step=cc.step)
-    sup = asdict(config.suppress)
-    history = past_frames(**sup)
-    reader = _Reader(frames, history, cc.length)
+    params = _StageParams(config)
+    reader = _Reader(frames, past_frames(**params.suppress), cc.length)
+    pool = ThreadPoolExecutor(int(workers)) if workers > 1 else None
+    fronts: deque = deque()      # windows read and submitted, in order
     pending: deque = deque()
     segment_id = 0
     bar = _bar(n_frames, progress)
+
+    def submit(k: int):
+        t0 = time.perf_counter()
+        block, previous = reader.read(int(starts[k]), int(starts[k]) + cc.length)
+        previous = previous if len(previous) else None
+        if pool is None:
+            _lap(timings, "read", t0)
+            return _Ready(_front(block, previous, params, timings))
+        # the reader's buffer is reused: the thread gets its own copy
+        block = block.copy()
+        previous = None if previous is None else previous.copy()
+        _lap(timings, "read", t0)
+        return pool.submit(_front, block, previous, params, timings)
+
     try:
+        submitted = 0
         for k, s in enumerate(starts):
-            block, previous = reader.read(int(s), int(s) + cc.length)
-            if previous is not None and len(previous) == 0:
-                previous = None
-            residual = suppress(block, previous=previous, **sup)
-            comb = combine(residual, **{**asdict(cc), "step": cc.length})[0]
-            det = detect(comb, **asdict(config.detect))
-            cand = fuse(det, comb, **asdict(config.fuse))
+            while submitted < len(starts) and len(fronts) < (1 if pool is None else 2 * workers):
+                fronts.append(submit(submitted))
+                submitted += 1
+            cand, n_pixels = fronts.popleft().result()
             cand["frame_start"], cand["frame_end"] = s, s + cc.length - 1
             cand["combined_frame"] = k
             pending.append(_Pending(cand, cc.length if cc.projection == "dp" else 0))
             log.debug("combined frame %d (frames %d-%d): %d candidate pixels, %d fused points",
-                      k, s, s + cc.length - 1, det.count, len(cand))
+                      k, s, s + cc.length - 1, n_pixels, len(cand))
             segments = tables.empty(tables.SEGMENT)
             if len(pending) == N_CORRELATE:
-                corr = correlate(*(p.table for p in pending), cc.step,
-                                 **asdict(config.correlate))
+                t0 = time.perf_counter()
+                corr = correlate(*(p.table for p in pending), cc.step, **params.correlate)
+                _lap(timings, "correlate", t0)
                 segments = corr.segments
                 segments["combined_frame"] = k - 2
                 segments["segment_id"] = np.arange(segment_id, segment_id + len(segments))
@@ -117,8 +144,55 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
         while pending:
             yield pending.popleft().emit(tables.empty(tables.SEGMENT))
     finally:
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
         if bar is not None:
             bar.close()
+
+
+class _StageParams:
+    """The stages' keyword arguments, built once per run (not per window)."""
+
+    def __init__(self, config: ProcessConfig):
+        self.suppress = asdict(config.suppress)
+        self.combine = {**asdict(config.combine), "step": config.combine.length}
+        self.detect = asdict(config.detect)
+        self.fuse = asdict(config.fuse)
+        self.correlate = asdict(config.correlate)
+
+
+def _front(block, previous, params: _StageParams, timings: dict | None):
+    """One window's suppression, combination, detection and fusion: (candidates, pixels)."""
+    t = time.perf_counter()
+    residual = suppress(block, previous=previous, **params.suppress)
+    t = _lap(timings, "suppress", t)
+    comb = combine(residual, **params.combine)[0]
+    del residual
+    t = _lap(timings, "combine", t)
+    det = detect(comb, **params.detect)
+    t = _lap(timings, "detect", t)
+    cand = fuse(det, comb, **params.fuse)
+    _lap(timings, "fuse", t)
+    return cand, det.count
+
+
+class _Ready:
+    """A result computed on the calling thread, with the interface of a Future."""
+
+    def __init__(self, value):
+        self.value = value
+
+    def result(self):
+        return self.value
+
+
+def _lap(timings: dict | None, name: str, t0: float) -> float:
+    """Add the seconds since ``t0`` to ``timings[name]``; return the current time."""
+    t = time.perf_counter()
+    if timings is not None:
+        with _TIMINGS_LOCK:
+            timings[name] = timings.get(name, 0.0) + (t - t0)
+    return t
 
 
 def detect_sequence(frames, config: ProcessConfig | None = None, *,
@@ -163,7 +237,8 @@ def initiate_tracks(detections: np.ndarray, config: ProcessConfig) -> np.ndarray
 
 
 def process_file(input, output, config: ProcessConfig | None = None, *, dataset=None,
-                 force: bool = False, progress: bool = False, attrs: dict | None = None) -> dict:
+                 force: bool = False, progress: bool = False, attrs: dict | None = None,
+                 workers: int = 1, timings: dict | None = None) -> dict:
     """Run ``irdetect process``: read a sequence, write a results file.
 
     Parameters
@@ -182,6 +257,11 @@ def process_file(input, output, config: ProcessConfig | None = None, *, dataset=
     attrs : dict, optional
         Extra root attributes for the results file (``irdetect.batch`` stores the input's
         fingerprint here so a re-run can skip finished inputs).
+    workers : int
+        Threads over windows (``iter_results``); the results do not depend on it.
+    timings : dict, optional
+        Seconds per stage are added to it (``iter_results``, plus ``write`` for the
+        results file and ``initiate`` for track initiation).
 
     Returns
     -------
@@ -217,16 +297,22 @@ def process_file(input, output, config: ProcessConfig | None = None, *, dataset=
         detections = []
         with ResultsWriter(output, force=force, attrs=attrs) as out:
             n_combined = 0
-            for chunk in iter_results(src, config, progress=progress):
+            for chunk in iter_results(src, config, progress=progress, workers=workers,
+                                      timings=timings):
+                t = time.perf_counter()
                 n_combined += 1
                 for name, rows in chunk.items():
                     out.append(name, rows)
                     counts[name] += len(rows)
                 detections.append(chunk["detections"])
+                _lap(timings, "write", t)
+            t = time.perf_counter()
             dets = np.concatenate(detections) if detections else tables.empty(tables.DETECTION)
             tracks = initiate_tracks(dets, config)
+            t = _lap(timings, "initiate", t)
             out.write("tracks", tracks)
             out.attrs["n_combined"] = n_combined
+        _lap(timings, "write", t)
     seconds = time.perf_counter() - t0
     log.info("%d frames -> %d combined frames, %d candidates, %d detections, %d segments, "
              "%d tracks", n_frames, n_combined, counts["candidates"], counts["detections"],
