@@ -7,6 +7,9 @@ velocity Kalman + global nearest neighbour baseline (method "gnn"), on the harbo
 (one target each). Prints a table and writes docs/results/tracking.md.
 
 Usage: .venv/bin/python scripts/bench_tracking.py [--seeds 1 2 3] [--quick]
+                                                  [--jobs N | --scheduler ADDRESS]
+Runs go through irdetect.batch.map_tasks, so a many-seed study spreads over local processes
+(--jobs) or a Dask cluster (--scheduler) with one option; frames/s are per run either way.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from irdetect import __version__  # noqa: E402
+from irdetect.batch import map_tasks  # noqa: E402
 from irdetect.io import open_sequence, read_point_annotations  # noqa: E402
 from irdetect.metrics.mot import clear_mot  # noqa: E402
 from irdetect.simulate.harbour import simulate_harbour  # noqa: E402
@@ -63,25 +67,39 @@ HEADER = ("| scene | tracker | MOTA | MOTP (px) | IDF1 | id switches | recall | 
           "| tracks | frames/s |\n|---|---|---|---|---|---|---|---|---|---|")
 
 
+def harbour_run(item):
+    """One Monte Carlo run (module level, so map_tasks can ship it to other processes)."""
+    seed, n_frames, name, params, merge = item
+    over = {} if n_frames is None else {"n_frames": n_frames}
+    frames, truth = simulate_harbour(rng=seed, **over)
+    r = _run(frames, truth, HARBOUR_GATE, sea_sky=True, **params)
+    points = r.pop("points")
+    r["merge"] = _merge_check(points, truth) if merge else None
+    r["row"] = _row(f"harbour seed {seed} ({len(frames)} frames)", name, r)
+    return r
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--quick", action="store_true", help="300 harbour frames, no real data")
+    ap.add_argument("--jobs", type=int, default=1, help="local processes for the runs (1)")
+    ap.add_argument("--scheduler", help="Dask scheduler address for the runs")
     ap.add_argument("--out", default=str(ROOT / "docs" / "results" / "tracking.md"))
     args = ap.parse_args(argv)
     n_frames = 300 if args.quick else None
+    items = [(seed, n_frames, name, params, not args.quick)
+             for seed in args.seeds for name, params in METHODS]
+    results = map_tasks(harbour_run, items, jobs=args.jobs, scheduler=args.scheduler,
+                        progress=True, desc="harbour runs")
     harbour_rows, merge_notes = [], []
     totals = {name: [] for name, _ in METHODS}
-    for seed in args.seeds:
-        over = {} if n_frames is None else {"n_frames": n_frames}
-        frames, truth = simulate_harbour(rng=seed, **over)
-        for name, params in METHODS:
-            r = _run(frames, truth, HARBOUR_GATE, sea_sky=True, **params)
-            totals[name].append(r)
-            harbour_rows.append(_row(f"harbour seed {seed} ({len(frames)} frames)", name, r))
-            print(harbour_rows[-1], flush=True)
-            if not args.quick:
-                merge_notes.append((seed, name, _merge_check(r.pop("points"), truth)))
+    for (seed, _, name, _, _), r in zip(items, results):
+        totals[name].append(r)
+        harbour_rows.append(r["row"])
+        print(r["row"], flush=True)
+        if r["merge"] is not None:
+            merge_notes.append((seed, name, r["merge"]))
     mean_rows = []
     for name, rs in totals.items():
         mean = {k: float(np.mean([r[k] for r in rs])) for k in
