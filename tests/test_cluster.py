@@ -59,3 +59,20 @@ def test_empty_single_identical_nan():
     assert len(subtractive_cluster(np.ones((7, 2))).centres) == 1
     with pytest.raises(ValueError, match="NaN"):
         subtractive_cluster(np.array([[np.nan, 0.0]]))
+
+
+def test_groups_give_what_separate_calls_give():
+    # three independent problems (tiles) solved in one call, line wrap included
+    rng = np.random.default_rng(11)
+    parts = [np.column_stack([rng.normal(c, 3.0, 30), rng.uniform(0, math.pi, 30)])
+             for c in (-40.0, 0.0, 55.0)]
+    bounds = [[-100, 0], [100, math.pi]]
+    kw = dict(radii=[0.04, 0.08], bounds=bounds, wrap_lines=True)
+    together = subtractive_cluster(np.concatenate(parts), groups=np.repeat([0, 1, 2], 30), **kw)
+    for g, x in enumerate(parts):
+        alone = subtractive_cluster(x, **kw)
+        mine = together.index[(together.index >= 30 * g) & (together.index < 30 * (g + 1))]
+        assert sorted(mine - 30 * g) == sorted(alone.index)
+        # every point is labelled with a centre of its own group
+        own = np.flatnonzero(np.isin(together.index, mine))
+        assert set(together.labels[30 * g:30 * (g + 1)]) <= set(own.tolist())

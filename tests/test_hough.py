@@ -70,3 +70,38 @@ def test_nms_keeps_one_per_peak():
     acc[15, 12] = 6
     pk = nms_peaks(acc, size=3, threshold=5)
     assert pk.tolist() == [[5, 5], [15, 12]]
+
+
+def _greedy_nms(acc, size, threshold):
+    """Reference: one peak at a time, theta wrapping with rho mirrored."""
+    a = np.array(acc, float)
+    n_rho, n_theta = a.shape
+    flat = np.flatnonzero(a > threshold)
+    order = flat[np.argsort(-a.ravel()[flat], kind="stable")]
+    alive = np.zeros(a.size, bool)
+    alive[order] = True
+    h, out = size // 2, []
+    for idx in order:
+        if not alive[idx]:
+            continue
+        j, n = divmod(int(idx), n_theta)
+        out.append((j, n))
+        rows = np.arange(j - h, j + h + 1)
+        for col in range(n - h, n + h + 1):
+            r = (n_rho - 1 - rows) if (col < 0 or col >= n_theta) else rows
+            r = r[(r >= 0) & (r < n_rho)]
+            alive[r * n_theta + col % n_theta] = False
+    return np.array(out, np.int64).reshape(-1, 2)
+
+
+def test_parallel_nms_is_exactly_greedy_with_wrap_and_tiles():
+    rng = np.random.default_rng(2)
+    for _ in range(40):
+        n_rho, n_theta = rng.integers(3, 25, 2)
+        size = int(rng.choice([1, 3, 5]))
+        accs = rng.integers(0, 6, (3, n_rho, n_theta)).astype(float)
+        assert np.array_equal(nms_peaks(accs[0], size=size, threshold=2.5),
+                              _greedy_nms(accs[0], size, 2.5))
+        tiled = nms_peaks(accs, size=size, threshold=2.5)
+        for g in range(3):
+            assert np.array_equal(tiled[tiled[:, 0] == g][:, 1:], _greedy_nms(accs[g], size, 2.5))

@@ -127,3 +127,38 @@ def test_config_mirrors_keywords():
     sig = inspect.signature(initiate_detections)
     kw = {k: v.default for k, v in sig.parameters.items() if k != "detections"}
     assert dataclasses.asdict(InitiateConfig()) == kw
+
+
+def test_chi_square_gate_drops_an_uneven_track_the_point_gates_keep():
+    # scans 0..3 on two lines: a CV track, and one whose along-track offsets 0, +3, -3, 0
+    # leave residuals 0.9, 2.7, 2.7, 0.9 sigma to its own LS fit (all within the per-point
+    # gate of 3 x 1.15 sigma) but a fit chi-square of 16.2 with 4 dof, beyond the 99 %
+    # point (13.3): the speed is not constant
+    k = np.arange(4)
+    x = np.r_[10.0 * k, 10.0 * k + np.array([0.0, 3.0, -3.0, 0.0])]
+    y = np.r_[np.full(4, 20.0), np.full(4, 60.0)]
+    t = np.r_[k, k].astype(float)
+    params = dict(method="hough", rho_step=2.0, n_theta=180, sigma=1.0, min_hits=1.0,
+                  v_max=20.0)
+    loose, _ = initiate_points(x, y, t, np.r_[k, k], fit_confidence=1.0, **params)
+    strict, members = initiate_points(x, y, t, np.r_[k, k], **params)
+    assert len(loose) == 2
+    assert len(strict) == 1 and sorted(members[0].tolist()) == [0, 1, 2, 3]
+
+
+def test_liang2015_preset_initiates_every_target_with_few_false_tracks():
+    from irdetect.initiate import initiate_scans
+    from irdetect.metrics.initiation import score_scan_tracks
+    from irdetect.simulate.scans import load_scan_scenario, simulate_scans
+
+    _, params = load_scan_scenario("liang2015")
+    found = false = 0
+    for seed in range(3):
+        scans, truth, attrs = simulate_scans("liang2015", rng=100 + seed)
+        tracks = initiate_scans(scans, window=5, **params)
+        sc = score_scan_tracks(tracks, truth, windows=[(0, 4)],
+                               scan_times={k: 5.0 * k for k in range(5)},
+                               sigma=lambda x, y: np.maximum(200.0, np.hypot(x, y) * 0.00524))
+        found += sc["initiated"].sum()
+        false += sc["n_false"].sum()
+    assert found == 15 and false <= 1

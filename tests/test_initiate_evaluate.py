@@ -1,0 +1,42 @@
+"""Track-initiation scores through the CLI: `process` results and `initiate` results."""
+
+import json
+
+import numpy as np
+
+from irdetect.cli import main
+from irdetect.io import write_sequence
+from irdetect.simulate import simulate
+
+
+def _json(capsys, argv):
+    capsys.readouterr()
+    assert main(argv) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_evaluate_scores_the_tracks_of_process(tmp_path, capsys):
+    frames, truth = simulate("wan2008", snr=4, rng=3, n_frames=48, height=120, width=160,
+                             n_targets=3, directions=[0.0, 120.0, 240.0])
+    seq, out = tmp_path / "seq.h5", tmp_path / "seq.irdetect.h5"
+    write_sequence(seq, frames, truth=truth)
+    assert main(["process", str(seq), "-o", str(out), "-q"]) == 0
+    scores = _json(capsys, ["evaluate", str(out), "--json"])["track initiation"]
+    assert scores["pt_overall"] == 1.0 and scores["n_false"] == 0
+    assert [scores[f"pt target {j}"] for j in range(3)] == [1.0, 1.0, 1.0]
+    assert scores["speed_error_median"] < 0.1
+
+
+def test_evaluate_scores_the_scan_tracks_of_initiate(tmp_path, capsys):
+    scans, out = tmp_path / "s.h5", tmp_path / "o.h5"
+    assert main(["simulate-scans", str(scans), "--scenario", "zhang2010", "--seed", "4",
+                 "--clutter-density", "0.03", "-q"]) == 0
+    assert main(["initiate", str(scans), "-o", str(out), "--window", "5", "-q"]) == 0
+    scores = _json(capsys, ["evaluate", str(out), "--json"])["track initiation (scans)"]
+    # two windows of 5 scans, 3 targets each: every target in both
+    assert scores["pt_overall"] == 1.0 and scores["n_tracks"] >= 6
+    assert scores["pc"] == scores["n_false"] / scores["n_tracks"]
+    assert np.isfinite(scores["ospa_mean"]) and scores["ospa_mean"] < 1000.0
+    # the same with the truth named explicitly
+    again = _json(capsys, ["evaluate", str(out), "--truth", str(scans), "--json"])
+    assert again["track initiation (scans)"] == scores
