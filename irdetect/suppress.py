@@ -368,7 +368,8 @@ def _temporal(stack: np.ndarray, history: int, size: int, past: np.ndarray | Non
     return out
 
 
-#: phase-correlation peaks weaker than this are not trusted as a global shift
+#: phase-correlation peaks weaker than this (or than 60 / sqrt(H W), what pure noise
+#: reaches on small frames) are not trusted as a global shift
 MIN_RESPONSE = 0.15
 
 
@@ -389,6 +390,8 @@ class _Registrar:
         self.ok = h >= 8 and w >= 8
         self._flat: dict[int, bool] = {}
         self.limit = min(h, w) / 4.0
+        # pure noise gives peaks up to about 50 / sqrt(H W) (measured, 32-256 px frames)
+        self.min_response = max(MIN_RESPONSE, 60.0 / np.sqrt(h * w))
         self.win = cv2.createHanningWindow((w, h), cv2.CV_32F) if self.ok else None
 
     def flat(self, i: int) -> bool:
@@ -405,9 +408,9 @@ class _Registrar:
         d, response = cv2.phaseCorrelate(self.frames[ref].copy(), self.frames[cur].copy(),
                                          self.win)
         # a featureless pair (noise only) gives a weak peak anywhere: take no motion
-        # rather than a jump (simulated noise: response 0.02-0.09; DAUB pairs 19 frames
-        # apart: 0.6-0.95)
-        if not (response >= MIN_RESPONSE and np.isfinite(d).all()
+        # rather than a jump (simulated 320x240 noise: response 0.02-0.09; DAUB pairs 19
+        # frames apart: 0.6-0.95)
+        if not (response >= self.min_response and np.isfinite(d).all()
                 and abs(d[0]) <= self.limit and abs(d[1]) <= self.limit):
             return 0.0, 0.0
         return float(d[0]), float(d[1])

@@ -1,7 +1,8 @@
 """Score a results file against ground truth.
 
-Truth comes from ``--truth`` (a sequence file with /truth, or a point-annotation text
-file ``x y`` per frame), else from the results file's own input when that has /truth.
+Truth comes from ``--truth`` (a sequence file with /truth, a point-annotation text file
+``x y`` per frame, or a folder of frames with ``truth.txt`` in it or in its parent),
+else from the results file's own input when that has /truth or such a ``truth.txt``.
 Each section scores one table when the results file holds it:
 
   detection   /detections  Pd per window (one-to-one within --gate px of the true path),
@@ -28,8 +29,9 @@ from irdetect.io import open_sequence, read_point_annotations, read_results
 
 def add_arguments(p):
     p.add_argument("results", help="results file written by irdetect process")
-    p.add_argument("--truth", help="sequence file with /truth, or a text file of 'x y' per "
-                   "frame (default: the results file's input, when it has truth)")
+    p.add_argument("--truth", help="sequence file with /truth, a text file of 'x y' per "
+                   "frame, or a folder of frames with truth.txt in it or beside it (default: "
+                   "the results file's input, when it has truth)")
     p.add_argument("--gate", type=float, default=3.0,
                    help="match distance in px between a detection and the true path (3)")
     p.add_argument("--json", action="store_true", help="print the scores as JSON")
@@ -128,6 +130,14 @@ def _load_truth(results, results_path, truth_path):
             raise InputError("no --truth given and the results' input file was not found",
                              results_path)
     p = Path(truth_path)
+    if p.is_dir():
+        # a folder of frames: its point annotations sit in it or beside it
+        # (../shared/data/real/NAME/{frames/, truth.txt})
+        found = [q / "truth.txt" for q in (p, p.parent) if (q / "truth.txt").is_file()]
+        if not found:
+            raise InputError("a folder of frames has no truth.txt in it or beside it; "
+                             "give --truth ANNOTATIONS.txt", p)
+        p = found[0]
     if p.suffix.lower() in (".txt", ".csv"):
         return read_point_annotations(p), None
     with open_sequence(p) as src:
