@@ -24,8 +24,10 @@ Methods (``method=``):
 Every Hough method recovers the measurements supporting each selected cell; with
 ``verify=True`` (the default, beyond the papers) they are kept only when they form a
 constant-velocity track: one measurement per scan, speed within [v_min, v_max], every
-position within ``gate`` sigma of a least-squares constant-velocity fit, at least
-``min_hits`` of the window's scans. Coordinates: x = column, y = row (pixels) for images,
+position within ``gate`` sigma of a least-squares constant-velocity fit (in range /
+cross-range terms for polar measurements), a fit chi-square within the ``fit_confidence``
+quantile (2n - 4 degrees of freedom), at least ``min_hits`` of the window's scans. All
+cells are handled as arrays (no loop over cells or hypotheses). Coordinates: x = column, y = row (pixels) for images,
 metres for scans; time in frames or seconds.
 """
 
@@ -39,8 +41,8 @@ from scipy.stats import chi2 as chi2_dist
 
 from irdetect import tables
 from irdetect.cluster import subtractive_cluster
-from irdetect.hough import (HoughGrid, fuzzy_hough_transform, hough_grid, hough_transform,
-                            nms_peaks, rho_sigma)
+from irdetect.hough import (fuzzy_hough_transform, hough_grid, hough_transform, nms_peaks,
+                            rho_sigma)
 
 log = logging.getLogger(__name__)
 
