@@ -219,6 +219,40 @@ def run_trackpy(frames, truth, gate, target_false, trackpy):
     return best if best is not None else s
 
 
+def picture(name: str, t: int) -> Path:
+    """Side by side at 2x: frame t (1-99.8 % stretch) and its residual under the default
+    suppressor; green circle = truth, red = confirmed detections of t's window."""
+    from irdetect.suppress import past_frames, suppress
+
+    frames, truth = load(REAL / name)
+    cfg = ProcessConfig()
+    sup = {k: getattr(cfg.suppress, k) for k in cfg.suppress.__dataclass_fields__}
+    keep = past_frames(**sup)
+    res = suppress(frames[t:t + 1], previous=frames[max(0, t - keep):t], **sup)[0]
+    det = detect_sequence(frames, cfg)["detections"]
+    det = det[(det["frame_start"] <= t) & (det["frame_end"] >= t)]
+
+    def stretch(a):
+        lo, hi = np.percentile(a, [1, 99.8])
+        g = np.clip((a - lo) / max(hi - lo, 1e-6) * 255, 0, 255).astype(np.uint8)
+        return cv2.cvtColor(cv2.resize(g, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST),
+                            cv2.COLOR_GRAY2BGR)
+
+    panels = [stretch(np.asarray(frames[t], np.float32)), stretch(res)]
+    for img in panels:
+        cv2.circle(img, (int(2 * truth["x"][t]), int(2 * truth["y"][t])), 12, (0, 200, 0), 1)
+        for r in det:
+            cv2.circle(img, (int(2 * r["x"]), int(2 * r["y"])), 8, (0, 0, 255), 1)
+    # a 128 x 128 px crop (256 at 2x) around the target keeps the file small
+    h, w = frames.shape[1:]
+    cx = int(np.clip(truth["x"][t] - 64, 0, max(0, w - 128))) * 2
+    cy = int(np.clip(truth["y"][t] - 64, 0, max(0, h - 128))) * 2
+    panels = [img[cy:cy + 256, cx:cx + 256] for img in panels]
+    out = ROOT / "docs" / "results" / f"real-{name}.png"
+    cv2.imwrite(str(out), np.hstack(panels), [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    return out
+
+
 # --- report ----------------------------------------------------------------------------
 
 def fmt(x, digits=2):
@@ -231,10 +265,18 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=str(ROOT / "docs" / "results" / "real.md"))
     ap.add_argument("--only", action="append", help="run only this sequence (repeatable)")
+    ap.add_argument("--picture", action="append", metavar="NAME:FRAME",
+                    help="write docs/results/real-NAME.png (frame, residual, detections) "
+                    "instead of the benchmark (repeatable)")
     args = ap.parse_args(argv)
     if not REAL.is_dir():
         print(f"real data not found at {REAL} (../shared/data/real beside the repo)")
         return 1
+    if args.picture:
+        for spec in args.picture:
+            name, frame = spec.split(":")
+            print("wrote", picture(name, int(frame)))
+        return 0
     try:
         import trackpy
         trackpy.quiet()
