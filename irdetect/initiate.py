@@ -620,8 +620,10 @@ def _cv_batch(win: _Window, ptr, mem, cells, theta, K, p, max_tracks: int = 4):
     speed along the cell's line, speed within [v_min, 1.2 v_max]); the hypothesis with
     the most scans within 2 ``gate`` sigma (then the smallest normalised residual) gives
     one measurement per scan, refined twice by a least-squares CV fit (nearest
-    measurement per scan within 1.15 ``gate`` sigma of the fit); the track is kept when
-    it spans ``min_hits`` of the scans and its fitted speed is within bounds. Its
+    measurement per scan whose residual, normalised by its own error ellipse, is within
+    1.15 ``gate``); the track is kept when it spans ``min_hits`` of the scans, its fitted
+    speed is within bounds and the sum of its squared normalised residuals is within the
+    ``fit_confidence`` quantile of chi-square with 2n - 4 degrees of freedom. Its
     measurements (and the hypothesis' inliers) leave the pool and the search repeats,
     up to ``max_tracks`` per cell. All cells of the batch are processed together as
     (cells, K) arrays padded to K measurements.
