@@ -59,7 +59,7 @@ class DetectConfig:
     """Directional threshold detection (``irdetect.detect.detect``)."""
 
     window: int = 3
-    k: float = 3.5
+    k: float = 2.5
     sigma: str = "local"
     tile: int = 32
     smooth: float = 0.0
@@ -81,11 +81,12 @@ class CorrelateConfig:
     """Bidirectional 3-frame correlation (``irdetect.correlate.correlate``)."""
 
     max_speed: float = 1.5
-    tolerance: float = 2.0
+    tolerance: float = 3.0
     constant_velocity: bool = True
-    max_deviation: float = 5.0
+    max_deviation: float = 8.0
     resolve: str = "cost"
-    min_score: float = 5.0
+    min_score: float = 0.0
+    verify: float = 6.0
 
 
 # --- track initiation (zhang2010, liang2015; issues 4, 5) -----------------------------

@@ -87,7 +87,7 @@ def line_kernels(window: int, directions: int = 4) -> list[np.ndarray]:
     return out
 
 
-def detect(combined, *, window: int = 3, k: float = 3.5, sigma: str = "local",
+def detect(combined, *, window: int = 3, k: float = 2.5, sigma: str = "local",
            tile: int = 32, smooth: float = 0.0, directions: int = 4) -> DirectionalDetection:
     """Directional CFAR threshold detection on one combined frame.
 

@@ -27,7 +27,7 @@ import numpy as np
 from irdetect import tables
 from irdetect.combine import combine, frames_needed, window_starts
 from irdetect.config import ProcessConfig, to_json
-from irdetect.correlate import correlate
+from irdetect.correlate import DP_LEADS, Evidence, correlate, matched_frame, noise_level
 from irdetect.detect import detect
 from irdetect.errors import InputError
 from irdetect.fuse import fuse
@@ -120,23 +120,25 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
             while submitted < len(starts) and len(fronts) < (1 if pool is None else 2 * workers):
                 fronts.append(submit(submitted))
                 submitted += 1
-            cand, n_pixels = fronts.popleft().result()
+            cand, n_pixels, matched = fronts.popleft().result()
             cand["frame_start"], cand["frame_end"] = s, s + cc.length - 1
             cand["combined_frame"] = k
-            pending.append(_Pending(cand, cc.length if cc.projection == "dp" else 0))
+            pending.append(_Pending(cand, cc.length if cc.projection == "dp" else 0,
+                                    matched, int(s)))
             log.debug("combined frame %d (frames %d-%d): %d candidate pixels, %d fused points",
                       k, s, s + cc.length - 1, n_pixels, len(cand))
             segments = tables.empty(tables.SEGMENT)
             if len(pending) == N_CORRELATE:
                 t0 = time.perf_counter()
-                corr = correlate(*(p.table for p in pending), cc.step, **params.correlate)
+                corr = correlate(*(p.table for p in pending), cc.step,
+                                 _evidence(pending, cc), **params.correlate)
                 _lap(timings, "correlate", t0)
                 segments = corr.segments
                 segments["combined_frame"] = k - 2
                 segments["segment_id"] = np.arange(segment_id, segment_id + len(segments))
                 segment_id += len(segments)
                 for i, p in enumerate(pending):
-                    p.confirm(corr.index[:, i], segments)
+                    p.confirm(corr.index[:, i], segments, corr.positions[:, i])
                 yield pending.popleft().emit(segments)
             if bar is not None:
                 bar.update(int(min(starts[k + 1] if k + 1 < len(starts) else n_frames,
@@ -159,21 +161,49 @@ class _StageParams:
         self.detect = asdict(config.detect)
         self.fuse = asdict(config.fuse)
         self.correlate = asdict(config.correlate)
+        # the verification of chains needs the matched residual frames of each window
+        self.matched = config.correlate.verify > 0
+        self.psf = config.combine.dp_smooth
 
 
 def _front(block, previous, params: _StageParams, timings: dict | None):
-    """One window's suppression, combination, detection and fusion: (candidates, pixels)."""
+    """One window's suppression, combination, detection and fusion.
+
+    Returns (candidates, candidate pixels, matched residual frames or None).
+    """
     t = time.perf_counter()
     residual = suppress(block, previous=previous, **params.suppress)
     t = _lap(timings, "suppress", t)
     comb = combine(residual, **params.combine)[0]
+    matched = [matched_frame(r, params.psf) for r in residual] if params.matched else None
     del residual
     t = _lap(timings, "combine", t)
     det = detect(comb, **params.detect)
     t = _lap(timings, "detect", t)
     cand = fuse(det, comb, **params.fuse)
     _lap(timings, "fuse", t)
-    return cand, det.count
+    return cand, det.count, matched
+
+
+def _evidence(pending, cc) -> Evidence | None:
+    """The matched frames of the 3 pending windows, each frame once (windows may overlap)."""
+    if pending[0].matched is None:
+        return None
+    frames, index = [], []
+    for p in pending:
+        for i, f in enumerate(p.matched):
+            if not index or p.start + i > index[-1]:
+                frames.append(f)
+                index.append(p.start + i)
+    # the dp merit's fused point sits near the window's last frame (trailing its target
+    # by some frames: DP_LEADS); other projections' at the window's middle
+    mid = (cc.length - 1) / 2.0
+    dp = cc.projection == "dp"
+    at = cc.length - 1 if dp else mid
+    return Evidence(frames=frames, index=np.array(index),
+                    times=tuple(p.start + at for p in pending),
+                    report=tuple(p.start + mid for p in pending), sigma=noise_level(frames),
+                    leads=DP_LEADS if dp else (0.0,))
 
 
 class _Ready:
@@ -326,16 +356,20 @@ def process_file(input, output, config: ProcessConfig | None = None, *, dataset=
 class _Pending:
     """Candidates of one combined frame waiting for the segments that may confirm them."""
 
-    def __init__(self, table: np.ndarray, dp_length: int = 0):
+    def __init__(self, table: np.ndarray, dp_length: int = 0, matched=None, start: int = 0):
         self.table = table
         self.dp_length = dp_length
+        self.matched = matched      # matched residual frames of the window (or None)
+        self.start = start          # the window's first frame
         n = len(table)
         self.vx = np.full(n, np.nan)
         self.vy = np.full(n, np.nan)
+        self.pos = np.full((n, 2), np.nan)
         self.seg_score = np.full(n, -np.inf)
 
-    def confirm(self, rows: np.ndarray, segments: np.ndarray) -> None:
-        """Mark ``rows`` confirmed; keep the velocity of the best-scoring segment."""
+    def confirm(self, rows: np.ndarray, segments: np.ndarray, positions=None) -> None:
+        """Mark ``rows`` confirmed; keep the velocity (and verified position at the
+        window's middle, when given) of the best-scoring segment."""
         if len(rows) == 0:
             return
         self.table["confirmed"][rows] = True
@@ -346,6 +380,8 @@ class _Pending:
             if segments["score"][s] >= self.seg_score[r]:
                 self.seg_score[r] = segments["score"][s]
                 self.vx[r], self.vy[r] = segments["vx"][s], segments["vy"][s]
+                if positions is not None:
+                    self.pos[r] = positions[s]
 
     def emit(self, segments: np.ndarray) -> dict:
         c = self.table
@@ -361,6 +397,11 @@ class _Pending:
             back = (self.dp_length - 1) / 2.0
             det["x"] -= det["vx"] * back
             det["y"] -= det["vy"] * back
+        # a verified segment gives the target's position at the window's middle directly
+        pos = self.pos[keep]
+        ok = np.isfinite(pos[:, 0])
+        det["x"][ok], det["y"][ok] = pos[ok, 0], pos[ok, 1]
+        self.matched = None         # release the frames
         return {"candidates": c, "detections": det, "segments": segments}
 
 
