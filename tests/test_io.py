@@ -121,3 +121,11 @@ def test_outputs_get_the_usual_permissions(tmp_path):
     mask = os.umask(0)
     os.umask(mask)
     assert mode == 0o666 & ~mask
+
+
+def test_recording_folder_reads_its_frames_subfolder(tmp_path):
+    frames = np.arange(3 * 4 * 5, dtype=np.uint8).reshape(3, 4, 5)
+    _write_folder(tmp_path / "frames", frames)
+    (tmp_path / "truth.txt").write_text("1 1\n2 2\n3 3\n")
+    with open_sequence(tmp_path) as src:
+        np.testing.assert_array_equal(src[:], frames)

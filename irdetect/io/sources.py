@@ -212,19 +212,26 @@ def natural_key(name: str):
     return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
 
 
+def _images_in(folder: Path) -> list[Path]:
+    return sorted((p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES
+                   and p.is_file()), key=lambda p: natural_key(p.name))
+
+
 class ImageFolderSource(FrameSource):
     """Frames from a folder of images, in natural sort order of their names.
 
     8- and 16-bit greyscale images are read as stored; colour images are converted to
-    grey. Every image must have the size and type of the first one.
+    grey. Every image must have the size and type of the first one. A recording folder
+    whose images sit in a ``frames/`` subfolder (with ``truth.txt`` beside it, the layout
+    of ``shared/data/real``) is read from that subfolder.
     """
 
     def __init__(self, path):
         self.path = os.fspath(path)
         folder = Path(path)
-        self._files = sorted((p for p in folder.iterdir()
-                              if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()),
-                             key=lambda p: natural_key(p.name))
+        self._files = _images_in(folder)
+        if not self._files and (folder / "frames").is_dir():
+            self._files = _images_in(folder / "frames")
         if not self._files:
             raise InputError("the folder holds no images (PNG, TIFF, BMP, JPEG, PGM)", path)
         first = self._load(self._files[0])
