@@ -81,12 +81,12 @@ class CorrelateConfig:
     """Bidirectional 3-frame correlation (``irdetect.correlate.correlate``)."""
 
     max_speed: float = 1.5
-    tolerance: float = 3.0
+    tolerance: float = 5.0
     constant_velocity: bool = True
-    max_deviation: float = 8.0
+    max_deviation: float = 14.0
     resolve: str = "cost"
     min_score: float = 0.0
-    verify: float = 6.0
+    verify: float = 7.0
 
 
 # --- track initiation (zhang2010, liang2015; issues 4, 5) -----------------------------

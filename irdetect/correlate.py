@@ -115,6 +115,37 @@ def matched_frame(residual, smooth: float) -> np.ndarray:
     return f
 
 
+def standardise(frames, tile: int = 32) -> list:
+    """Divide a window's matched frames by their local robust noise scale (in place).
+
+    ``frames``: sequence of (H, W) float32 matched frames of one window. The scale is
+    1.4826 MAD per ``tile`` x ``tile`` block over every 3rd frame on a 2-px grid, bilinear
+    between block centres, floored at a quarter of the median block's; a frame smaller
+    than 2 tiles gets one scale. Structured clutter (cloud edges) then counts in units of
+    its own residual level, as the CFAR of ``irdetect.detect`` does per combined frame.
+    """
+    frames = list(frames)
+    if not frames:
+        return frames
+    h, w = frames[0].shape
+    ny, nx = max(1, h // tile), max(1, w // tile)
+    th, tw = h // ny, w // nx
+    sub = np.stack([np.asarray(f)[:ny * th:2, :nx * tw:2] for f in frames[::3]])
+    blocks = sub.reshape(len(sub), ny, sub.shape[1] // ny, nx, sub.shape[2] // nx)
+    blocks = blocks.transpose(1, 3, 0, 2, 4).reshape(ny, nx, -1)
+    med = np.median(blocks, axis=2)
+    dev = np.abs(blocks - med[..., None])
+    sc = 1.4826 * np.median(dev, axis=2)
+    flat = sc <= 0
+    if flat.any():
+        sc[flat] = 1.2533 * dev.mean(axis=2)[flat]
+    sc = np.maximum(sc, max(0.25 * float(np.median(sc)), float(np.finfo(np.float32).tiny)))
+    inv = cv2.resize((1.0 / sc).astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
+    for f in frames:
+        np.multiply(f, inv, out=f)
+    return frames
+
+
 def noise_level(frames) -> float:
     """Robust noise sd of matched frames: median over frames of 1.4826 MAD on a 4-px grid."""
     out = []
@@ -203,10 +234,10 @@ def track_significance(evidence: Evidence, points: np.ndarray, screen: float = -
 
 
 def correlate(points1, points2, points3, step: int, evidence: Evidence | None = None, *,
-              max_speed: float = 1.5, tolerance: float = 3.0,
-              constant_velocity: bool = True, max_deviation: float = 8.0,
+              max_speed: float = 1.5, tolerance: float = 5.0,
+              constant_velocity: bool = True, max_deviation: float = 14.0,
               resolve: str = "cost", min_score: float = 0.0,
-              verify: float = 6.0) -> Correlation:
+              verify: float = 7.0) -> Correlation:
     """Find 3-point segments through the fused points of 3 consecutive combined frames.
 
     Parameters

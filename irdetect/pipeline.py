@@ -23,11 +23,13 @@ from pathlib import Path
 from typing import Iterator
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from irdetect import tables
 from irdetect.combine import combine, frames_needed, window_starts
 from irdetect.config import ProcessConfig, to_json
-from irdetect.correlate import DP_LEADS, Evidence, correlate, matched_frame, noise_level
+from irdetect.correlate import (DP_LEADS, Evidence, correlate, matched_frame, noise_level,
+                                standardise)
 from irdetect.detect import detect
 from irdetect.errors import InputError
 from irdetect.fuse import fuse
@@ -124,7 +126,7 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
             cand["frame_start"], cand["frame_end"] = s, s + cc.length - 1
             cand["combined_frame"] = k
             pending.append(_Pending(cand, cc.length if cc.projection == "dp" else 0,
-                                    matched, int(s)))
+                                    matched, int(s), config.correlate.tolerance))
             log.debug("combined frame %d (frames %d-%d): %d candidate pixels, %d fused points",
                       k, s, s + cc.length - 1, n_pixels, len(cand))
             segments = tables.empty(tables.SEGMENT)
@@ -175,7 +177,8 @@ def _front(block, previous, params: _StageParams, timings: dict | None):
     residual = suppress(block, previous=previous, **params.suppress)
     t = _lap(timings, "suppress", t)
     comb = combine(residual, **params.combine)[0]
-    matched = [matched_frame(r, params.psf) for r in residual] if params.matched else None
+    matched = (standardise([matched_frame(r, params.psf) for r in residual])
+               if params.matched else None)
     del residual
     t = _lap(timings, "combine", t)
     det = detect(comb, **params.detect)
@@ -356,8 +359,10 @@ def process_file(input, output, config: ProcessConfig | None = None, *, dataset=
 class _Pending:
     """Candidates of one combined frame waiting for the segments that may confirm them."""
 
-    def __init__(self, table: np.ndarray, dp_length: int = 0, matched=None, start: int = 0):
+    def __init__(self, table: np.ndarray, dp_length: int = 0, matched=None, start: int = 0,
+                 tolerance: float = 5.0):
         self.table = table
+        self.tolerance = tolerance  # verified positions this close are one target
         self.dp_length = dp_length
         self.matched = matched      # matched residual frames of the window (or None)
         self.start = start          # the window's first frame
@@ -385,6 +390,7 @@ class _Pending:
 
     def emit(self, segments: np.ndarray) -> dict:
         c = self.table
+        self._merge_duplicates()
         keep = c["confirmed"]
         det = np.zeros(int(keep.sum()), dtype=tables.DETECTION)
         for name in ("x", "y", "frame_start", "frame_end", "combined_frame", "intensity",
@@ -403,6 +409,22 @@ class _Pending:
         det["x"][ok], det["y"][ok] = pos[ok, 0], pos[ok, 1]
         self.matched = None         # release the frames
         return {"candidates": c, "detections": det, "segments": segments}
+
+
+    def _merge_duplicates(self) -> None:
+        """One target split into two fused points, each confirmed by a different segment
+        (windows k-2..k and k-1..k+1), is one detection: of two confirmed points whose
+        verified positions lie within ``tolerance`` px, the lower-scoring is unconfirmed."""
+        rows = np.flatnonzero(self.table["confirmed"] & np.isfinite(self.pos[:, 0]))
+        if len(rows) < 2:
+            return
+        pairs = cKDTree(self.pos[rows]).query_pairs(self.tolerance, output_type="ndarray")
+        for a, b in pairs:          # a loop over duplicate pairs (rare)
+            ra, rb = rows[a], rows[b]
+            if not (self.table["confirmed"][ra] and self.table["confirmed"][rb]):
+                continue
+            lose = rb if self.seg_score[ra] >= self.seg_score[rb] else ra
+            self.table["confirmed"][lose] = False
 
 
 class _Reader:
