@@ -71,3 +71,64 @@ def test_bad_parameters_are_named(kwargs, name):
     args = {"step": 12, **kwargs}
     with pytest.raises(ValueError, match=name):
         correlate(_pts(1, 1), _pts(1, 1), _pts(1, 1), **args)
+
+
+def _faint_target_evidence(seed, snr=2.0, psf=0.6, noise=4.0, v=(0.8, -0.6)):
+    """36 noise frames with one Gaussian point moving at v px/frame; its true track."""
+    from irdetect.correlate import Evidence, matched_frame, noise_level, standardise
+
+    rng = np.random.default_rng(seed)
+    h, w = 64, 96
+    t = np.arange(36)
+    track = np.column_stack([30 + v[0] * t, 40 + v[1] * t])
+    yy, xx = np.mgrid[:h, :w]
+    frames = rng.normal(0, noise, (36, h, w)).astype(np.float32)
+    for i, (x, y) in enumerate(track):
+        frames[i] += snr * noise * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * psf ** 2))
+    matched = [f for k in range(3)
+               for f in standardise([matched_frame(r, psf) for r in frames[12 * k:12 * k + 12]])]
+    ev = Evidence(frames=matched, index=t, times=(11.0, 23.0, 35.0), report=(5.5, 17.5, 29.5),
+                  sigma=noise_level(matched))
+    return ev, track
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_verification_keeps_a_faint_target_and_rejects_a_noise_chain(seed):
+    ev, track = _faint_target_evidence(seed)
+    # fused points a little off the track (as the dp merit gives them), and a straight
+    # chain of 3 points where there is only noise
+    off = np.array([[0.7, -0.5], [-0.6, 0.4], [0.5, 0.6]])
+    target = [track[int(t)] + off[i] for i, t in enumerate(ev.times)]
+    noise = [np.array([70.0, 15.0]) + i * np.array([-6.0, 9.0]) for i in range(3)]
+    pts = [_pts(target[i], noise[i]) for i in range(3)]
+    c = correlate(*pts, step=12, evidence=ev, verify=7.0)
+    assert c.index.tolist() == [[0, 0, 0]]
+    assert c.significance[0] > 7.0
+    # the verified positions lie on the true track at the windows' middles
+    for i, t in enumerate(ev.report):
+        assert np.hypot(*(c.positions[0, i] - track[int(t)] - [0.5 * 0.8, -0.5 * 0.6])) < 1.0
+    assert np.hypot(c.segments["vx"][0] - 0.8, c.segments["vy"][0] + 0.6) < 0.05
+    # the same chains without evidence: both kept (nothing tells them apart)
+    assert len(correlate(*pts, step=12).segments) == 2
+    # verify = 0 is the unverified correlation even with evidence
+    assert len(correlate(*pts, step=12, evidence=ev, verify=0.0).segments) == 2
+
+
+def test_verification_significance_of_pure_noise_stays_low():
+    from irdetect.correlate import track_significance
+
+    ev, _ = _faint_target_evidence(3, snr=0.0)
+    rng = np.random.default_rng(5)
+    start = rng.uniform(20, 60, (200, 1, 2))
+    vel = rng.uniform(-1, 1, (200, 1, 2))
+    pts = start + vel * np.array([11.0, 23.0, 35.0])[None, :, None]
+    z, c, v = track_significance(ev, np.clip(pts, 2, 60))
+    assert z.shape == (200,) and c.shape == v.shape == (200, 2)
+    assert z.max() < 5.0
+
+
+def test_bad_evidence_and_verify_are_named():
+    with pytest.raises(ValueError, match="verify"):
+        correlate(_pts(1, 1), _pts(1, 1), _pts(1, 1), step=12, verify=-1)
+    with pytest.raises(ValueError, match="evidence"):
+        correlate(_pts(1, 1), _pts(1, 1), _pts(1, 1), 12, "frames")

@@ -133,3 +133,25 @@ def test_real_sequence_easy1():
                          shape=frames.shape[1:], gate=5.0)   # gate of its README
     assert m["targets"] == 3 and m["detected"] >= 2
     assert m["false_per_window"] <= 1.0
+
+
+def test_low_snr_targets_found_by_the_matched_filter_verification():
+    # wan2008 at SNR 2: the chains' matched-filter verification (the default) finds most
+    # target-windows with no false detection; without it (the earlier front end: k 3.5,
+    # mean point score >= 5) most are lost
+    previous = ProcessConfig()
+    previous = dataclasses.replace(
+        previous, detect=dataclasses.replace(previous.detect, k=3.5),
+        correlate=dataclasses.replace(previous.correlate, verify=0.0, min_score=5.0,
+                                      max_deviation=5.0, tolerance=2.0))
+    found = {"verified": 0, "previous": 0}
+    targets = 0
+    for seed in (1, 2):
+        frames, truth = simulate("wan2008", snr=2, rng=seed)
+        m = _score(detect_sequence(frames), frames, truth)
+        assert m["false"] == 0
+        found["verified"] += m["detected"]
+        targets += m["targets"]
+        found["previous"] += _score(detect_sequence(frames, previous), frames, truth)["detected"]
+    assert found["verified"] >= 0.8 * targets
+    assert found["previous"] < found["verified"] - 0.2 * targets
