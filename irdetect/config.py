@@ -85,8 +85,8 @@ class CorrelateConfig:
     constant_velocity: bool = True
     max_deviation: float = 14.0
     resolve: str = "cost"
-    min_score: float = 0.0
-    verify: float = 7.0
+    min_score: float = 3.5
+    verify: float = 6.5
 
 
 # --- track initiation (zhang2010, liang2015; issues 4, 5) -----------------------------

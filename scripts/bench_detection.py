@@ -268,12 +268,16 @@ def main(argv=None) -> int:
     say("## 3. Choices beyond the paper (wan2008, full pipeline, one option changed)")
     say()
     variants = [
-        ("default (dp merit, decay 0.95, k 2.5, peak split 5 px, const. velocity 8 px, "
-         "matched-filter verification 6, resolve=cost)", {}),
+        ("default (dp merit, decay 0.95, k 2.5, peak split 5 px, const. velocity 14 px, "
+         "tolerance 5 px, min_score 3.5, matched-filter verification 6.5, resolve=cost)", {}),
         ("no verification (the previous default: k 3.5, max_deviation 5, tolerance 2, "
          "min_score 5)", previous),
-        ("verify 5", dict(correlate__verify=5.0)),
+        ("verify 6", dict(correlate__verify=6.0)),
         ("verify 7", dict(correlate__verify=7.0)),
+        ("min_score 3.2", dict(correlate__min_score=3.2)),
+        ("min_score 0 (every chain verified)", dict(correlate__min_score=0.0)),
+        ("max_deviation 8, tolerance 3", dict(correlate__max_deviation=8.0,
+                                              correlate__tolerance=3.0)),
         ("k 3.0 (with verification)", dict(detect__k=3.0)),
         ("k 2.2 (with verification)", dict(detect__k=2.2)),
         ("no peak split (the paper's groups only)", dict(fuse__peak_radius=0)),

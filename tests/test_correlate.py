@@ -101,7 +101,7 @@ def test_verification_keeps_a_faint_target_and_rejects_a_noise_chain(seed):
     target = [track[int(t)] + off[i] for i, t in enumerate(ev.times)]
     noise = [np.array([70.0, 15.0]) + i * np.array([-6.0, 9.0]) for i in range(3)]
     pts = [_pts(target[i], noise[i]) for i in range(3)]
-    c = correlate(*pts, step=12, evidence=ev, verify=7.0)
+    c = correlate(*pts, step=12, evidence=ev, verify=7.0, min_score=0)
     assert c.index.tolist() == [[0, 0, 0]]
     assert c.significance[0] > 7.0
     # the verified positions lie on the true track at the windows' middles
@@ -109,9 +109,9 @@ def test_verification_keeps_a_faint_target_and_rejects_a_noise_chain(seed):
         assert np.hypot(*(c.positions[0, i] - track[int(t)] - [0.5 * 0.8, -0.5 * 0.6])) < 1.0
     assert np.hypot(c.segments["vx"][0] - 0.8, c.segments["vy"][0] + 0.6) < 0.05
     # the same chains without evidence: both kept (nothing tells them apart)
-    assert len(correlate(*pts, step=12).segments) == 2
+    assert len(correlate(*pts, step=12, min_score=0).segments) == 2
     # verify = 0 is the unverified correlation even with evidence
-    assert len(correlate(*pts, step=12, evidence=ev, verify=0.0).segments) == 2
+    assert len(correlate(*pts, step=12, evidence=ev, verify=0.0, min_score=0).segments) == 2
 
 
 def test_verification_significance_of_pure_noise_stays_low():
