@@ -240,6 +240,34 @@ def track_significance(evidence: Evidence, points: np.ndarray, screen: float = -
     return z, c, v
 
 
+#: a verified track must be a point: its statistic at RING_PX px to either side, in 8
+#: directions, stays under RING_RATIO of its own (an edge or a blob of clutter residual
+#: that moves coherently scores about as high beside the track as on it)
+RING_PX = 3.0
+RING_RATIO = 0.5
+
+
+def ring_significance(evidence: Evidence, c: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Largest matched-filter statistic of the tracks c + (RING_PX in 8 directions),
+    velocity v: (n,) in the units of ``track_significance``."""
+    if len(c) == 0:
+        return np.zeros(0)
+    stack = evidence.frames if isinstance(evidence.frames, np.ndarray) \
+        else np.stack(evidence.frames)
+    n_f, h, w = stack.shape
+    flat = stack.reshape(-1)
+    t = np.asarray(evidence.index, np.float64)
+    dts = (t - t.mean()).astype(np.float32)
+    offs = (np.arange(n_f, dtype=np.int64) * (h * w)).astype(
+        np.int32 if flat.size < 2 ** 31 - 1 else np.int64)
+    a = np.deg2rad(np.arange(0, 360, 45))
+    ring = RING_PX * np.column_stack([np.cos(a), np.sin(a)])              # (8, 2)
+    cc = c[:, None, :] + ring[None]
+    vv = np.repeat(v[:, None, :], len(ring), axis=1)
+    total = _sample_sum(flat, offs, dts, cc, vv, h, w, bilinear=True)
+    return total.max(axis=1) / (evidence.sigma * np.sqrt(n_f))
+
+
 #: samples (segments x hypotheses x frames) per chunk of ``track_significance``
 CHUNK = 1 << 13
 
@@ -402,6 +430,9 @@ def _verified(pts, scores, index, step, evidence, verify, resolve, tolerance) ->
     z, c, v = track_significance(evidence, points, screen=SCREEN * verify)
     keep = z >= verify
     index, z, c, v = index[keep], z[keep], c[keep], v[keep]
+    if len(z) and RING_RATIO > 0:
+        keep = ring_significance(evidence, c, v) <= RING_RATIO * z
+        index, z, c, v = index[keep], z[keep], c[keep], v[keep]
     tm = float(np.mean(evidence.index))
     report = np.asarray(evidence.report, np.float64) - tm
     positions = c[:, None, :] + v[:, None, :] * report[None, :, None]      # (n, 3, 2)
