@@ -333,12 +333,13 @@ def correlate(points1, points2, points3, step: int, evidence: Evidence | None = 
         Largest deviation from constant velocity in px (> 0), Euclidean.
     min_score : float
         Beyond the paper (0 = off): the mean score (CFAR z) of the 3 points must reach
-        it. The test of the earlier default (5, with ``k`` 3.5), when there is no
-        ``evidence``.
+        it. With the verification, a cheap pre-screen (3.5); without it, the earlier
+        default's test (5, with ``k`` 3.5 in ``irdetect.detect``).
     verify : float
         Beyond the paper (0 = off): with ``evidence``, keep a chain only when the
         velocity-matched filter along its straight track reaches ``verify`` noise sigmas
-        (a track-before-detect test over every frame of the 3 windows); "cost" then
+        (a track-before-detect test over every frame of the 3 windows) and the track is
+        a point (``ring_significance`` under ``RING_RATIO`` of it); "cost" then
         takes chains by decreasing significance and also drops a chain whose verified
         track runs within ``tolerance`` px of an accepted one in all 3 windows (one
         target, two chains). Segments then carry the verified velocity, and
