@@ -1,12 +1,13 @@
 """The detection pipeline: the only module that knows the order of the stages.
 
 frames -> suppress -> combine (one window at a time) -> detect -> fuse -> correlate over
-the last 3 combined frames -> confirmed detections -> track initiation.
+the last 3 combined frames (chains verified by a matched filter over their frames) ->
+confirmed detections -> track initiation.
 
 The sequence is streamed: one window of frames (plus the ``history`` frames the temporal
-suppressor needs) is in memory at a time, and only the fused points of the last 3
-combined frames are kept for correlation, so memory is bounded by the window, not the
-sequence length. A combined frame's candidates are final (and written) once the segment
+suppressor needs) is in memory at a time, and only the fused points and the matched
+residual frames of the last 3 combined frames are kept for correlation, so memory is
+bounded by the window, not the sequence length. A combined frame's candidates are final (and written) once the segment
 over it and the next two combined frames has been searched.
 """
 
