@@ -23,6 +23,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Iterator
 
+import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -177,9 +178,17 @@ def _front(block, previous, params: _StageParams, timings: dict | None):
     t = time.perf_counter()
     residual = suppress(block, previous=previous, **params.suppress)
     t = _lap(timings, "suppress", t)
-    comb = combine(residual, **params.combine)[0]
-    matched = (standardise([matched_frame(r, params.psf) for r in residual])
-               if params.matched else None)
+    if params.matched and params.combine["projection"] == "dp" and params.psf > 0:
+        # the dp merit and the matched filter smooth with the same Gaussian: smooth each
+        # residual once, in place, and tell both stages it is done (same values)
+        for r in residual:
+            cv2.GaussianBlur(r, (0, 0), params.psf, dst=r, borderType=cv2.BORDER_REFLECT)
+        comb = combine(residual, **{**params.combine, "dp_smooth": 0.0})[0]
+        matched = standardise([matched_frame(r, 0.0) for r in residual])
+    else:
+        comb = combine(residual, **params.combine)[0]
+        matched = (standardise([matched_frame(r, params.psf) for r in residual])
+                   if params.matched else None)
     del residual
     t = _lap(timings, "combine", t)
     det = detect(comb, **params.detect)
