@@ -213,7 +213,7 @@ def _evidence(pending, cc) -> Evidence | None:
     mid = (cc.length - 1) / 2.0
     dp = cc.projection == "dp"
     at = cc.length - 1 if dp else mid
-    return Evidence(frames=frames, index=np.array(index),
+    return Evidence(frames=np.stack(frames), index=np.array(index),
                     times=tuple(p.start + at for p in pending),
                     report=tuple(p.start + mid for p in pending), sigma=noise_level(frames),
                     leads=DP_LEADS if dp else (0.0,))
