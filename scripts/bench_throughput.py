@@ -328,6 +328,10 @@ def report(data: dict) -> str:
         "## Per stage (seconds in the stage, summed over threads; `process_file` in a child "
         "process)",
         "",
+        "`combine` includes the PSF-matched, standardised residual frames that the "
+        "verification in `correlate` integrates along each chain; `correlate` includes that "
+        "verification.",
+        "",
         "| frames | config | workers | " + " | ".join(STAGES) + " | wall s | fps | CPU s |",
         "|---|---|---|" + "---|" * len(STAGES) + "---|---|---|",
     ]
