@@ -4,14 +4,16 @@ wan2008 IR scene through the full pipeline. Prints the tables and writes
 docs/results/initiation.md.
 
 Usage: .venv/bin/python scripts/bench_initiation.py [--runs-zhang 50] [--runs-liang 100]
-       [--no-ir] [--jobs 2]
+       [--no-ir] [--jobs 2 | --scheduler ADDRESS]
+Runs go through irdetect.batch.map_tasks: --jobs local processes, or a Dask cluster with
+--scheduler, so a 10,000-run study spreads over a cluster with one option.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
-import multiprocessing as mp
+import functools
 import os
 import platform
 import sys
@@ -20,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
+from irdetect.batch import map_tasks
 from irdetect.initiate import initiate_scans, scan_windows
 from irdetect.metrics.initiation import score_image_tracks, score_scan_tracks
-# imported before the workers fork, so a long run sees one version of the front end
 from irdetect.pipeline import detect_sequence
 from irdetect.simulate import simulate
 from irdetect.simulate.scans import load_scan_scenario, simulate_scans
@@ -95,10 +97,10 @@ def _one_run(task):
             int(res["n_false"].sum()), float(res["ospa"].mean()), float(res["gospa"].mean()), dt)
 
 
-def run_set(pool, scenario, runs, overrides, window, params, sigma_kind):
+def run_set(run_all, scenario, runs, overrides, window, params, sigma_kind):
     tasks = [(scenario, 1000 + i, overrides, window, params, sigma_kind) for i in range(runs)]
     t0 = time.perf_counter()
-    out = pool.map(_one_run, tasks) if pool else list(map(_one_run, tasks))
+    out = run_all(_one_run, tasks)
     wall = time.perf_counter() - t0
     init = np.sum([o[0] for o in out], axis=0)
     pres = np.sum([o[1] for o in out], axis=0)
@@ -110,7 +112,7 @@ def run_set(pool, scenario, runs, overrides, window, params, sigma_kind):
             "cpu": sum(o[6] for o in out), "wall": wall}
 
 
-def zhang(pool, runs):
+def zhang(run_all, runs):
     _, base = load_scan_scenario("zhang2010")
     lines, verdicts = [], []
     for lam in (0.03, 0.1):
@@ -126,7 +128,7 @@ def zhang(pool, runs):
                              f"| *{p[3]}* | | | | | |")
             for label, method, extra in ZHANG_METHODS:
                 params = {**base, "method": method, **extra}
-                r = run_set(pool, "zhang2010", runs, {"clutter_density": lam, "n_scans": M}, M,
+                r = run_set(run_all, "zhang2010", runs, {"clutter_density": lam, "n_scans": M}, M,
                             params, "cart")
                 lines.append(f"| {label} | {r['pt'][0]:.0f} | {r['pt'][1]:.0f} | {r['pt'][2]:.0f} "
                              f"| {r['pc']:.2f} | {r['tracks_per_run']:.1f} | {r['ospa']:.0f} "
@@ -145,7 +147,7 @@ def zhang(pool, runs):
     return lines
 
 
-def liang(pool, runs):
+def liang(run_all, runs):
     _, base = load_scan_scenario("liang2015")
     lines = [f"\n### liang2015, 5 scans, clutter mean 50 per scan, {runs} Monte Carlo runs\n",
              "| method | correct initiation % (T1..T5) | mean correct % | false-track share % "
@@ -158,7 +160,7 @@ def liang(pool, runs):
     goal = ""
     for label, method, extra in LIANG_METHODS:
         params = {**base, "method": method, **extra}
-        r = run_set(pool, "liang2015", runs, {}, 5, params, "polar")
+        r = run_set(run_all, "liang2015", runs, {}, 5, params, "polar")
         per = " / ".join(f"{v:.0f}" for v in r["pt"])
         lines.append(f"| {label} | {per} | {r['pt_all']:.1f} | {r['pc']:.2f} "
                      f"| {r['tracks_per_run']:.1f} | {r['ospa']:.0f} "
@@ -183,7 +185,7 @@ def _ir_seed(task):
     return s["pt"], s["n_tracks"], s["n_false"], list(s["speed_error"]), len(out["detections"]), dt
 
 
-def ir_scene(pool, seeds):
+def ir_scene(run_all, seeds):
     """wan2008 IR scene at SNR 3 and 2 through the full front end
     (``irdetect.pipeline.detect_sequence``: detections -> ``initiate_detections`` with the
     InitiateConfig defaults)."""
@@ -198,7 +200,7 @@ def ir_scene(pool, seeds):
     for snr in (3.0, 2.0):
         tasks = [(snr, s) for s in range(seeds)]
         try:
-            out = pool.map(_ir_seed, tasks) if pool else list(map(_ir_seed, tasks))
+            out = run_all(_ir_seed, tasks)
         except Exception as exc:        # the front end belongs to other helpers: report it
             lines.append(f"| {snr:g} | failed: {type(exc).__name__}: {exc} | | | | | | | | |")
             verdict = "\nIR scene not measured (the front end failed; see the row above)."
@@ -230,13 +232,15 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs-zhang", type=int, default=50)
     ap.add_argument("--runs-liang", type=int, default=100)
-    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--jobs", type=int, default=2, help="local processes (2)")
+    ap.add_argument("--scheduler", help="Dask scheduler address (instead of --jobs)")
     ap.add_argument("--no-ir", action="store_true")
     ap.add_argument("--ir-seeds", type=int, default=20)
     ap.add_argument("--only", choices=("zhang", "liang", "ir"))
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args(argv)
-    pool = mp.get_context("fork").Pool(args.jobs) if args.jobs > 1 else None
+    # run_all(fn, items) -> [fn(item) for item in items] on the batch executor
+    run_all = functools.partial(map_tasks, jobs=args.jobs, scheduler=args.scheduler)
     t0 = time.time()
     lines = ["# Track initiation benchmark", "",
              "Produced by `scripts/bench_initiation.py` (do not edit by hand). "
@@ -250,19 +254,17 @@ def main(argv=None):
              "with the measurements that voted for it; 'CV check' = irdetect's constant-velocity "
              "verification of the supporting measurements (docs/initiation.md)."]
     if args.only in (None, "zhang"):
-        lines += zhang(pool, args.runs_zhang)
+        lines += zhang(run_all, args.runs_zhang)
     if args.only in (None, "liang"):
-        lines += liang(pool, args.runs_liang)
+        lines += liang(run_all, args.runs_liang)
     if args.only in (None, "ir") and not args.no_ir:
-        lines += ir_scene(pool, args.ir_seeds)
+        lines += ir_scene(run_all, args.ir_seeds)
     lines.append(f"\nTotal wall time {time.time() - t0:.0f} s.")
     text = "\n".join(lines) + "\n"
     print(text)
     if not args.no_write:
         OUT.parent.mkdir(parents=True, exist_ok=True)
         OUT.write_text(text)
-    if pool:
-        pool.close()
     return 0
 
 
