@@ -15,7 +15,8 @@ Measures, with the simulator's ground truth (and the real sequences in
    chosen);
 5. throughput in frames/s (2 shared cores: noisy).
 
-Usage: ``python scripts/bench_detection.py [--quick] [--seeds N] [--out PATH]``
+Usage: ``python scripts/bench_detection.py [--quick] [--seeds N] [--out PATH]
+[--jobs N | --scheduler ADDRESS]`` (runs go through irdetect.batch.map_tasks).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ import numpy as np
 from scipy.stats import norm
 
 from irdetect import tables
+from irdetect.batch import map_tasks
 from irdetect.combine import combine
 from irdetect.config import ProcessConfig
 from irdetect.detect import DirectionalDetection
@@ -125,14 +127,22 @@ def aggregate(scores):
             "false_per_mpx_window": f / mpx, "targets": t, "windows": w}
 
 
+#: where the Monte Carlo runs go (set by --jobs / --scheduler): irdetect.batch.map_tasks
+EXECUTOR = {"jobs": 1, "scheduler": None}
+
+
+def one_seed(task):
+    """One Monte Carlo run (module level, so map_tasks can ship it to other processes)."""
+    method, scenario, snr, seed, cfg, overrides = task
+    frames, truth = simulate(scenario, snr=snr, rng=seed, **overrides)
+    s = score(method, frames, truth, cfg)
+    s["_mpx"] = frames.shape[1] * frames.shape[2] / 1e6
+    return s
+
+
 def run_scene(method, scenario, snr, seeds, cfg, **overrides):
-    out = []
-    for seed in seeds:
-        frames, truth = simulate(scenario, snr=snr, rng=seed, **overrides)
-        s = score(method, frames, truth, cfg)
-        s["_mpx"] = frames.shape[1] * frames.shape[2] / 1e6
-        out.append(s)
-    return aggregate(out)
+    tasks = [(method, scenario, snr, seed, cfg, overrides) for seed in seeds]
+    return aggregate(map_tasks(one_seed, tasks, **EXECUTOR))
 
 
 def load_real():
@@ -185,7 +195,10 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="5 seeds instead of 20")
     ap.add_argument("--seeds", type=int, help="seeds per SNR (default 20, 5 with --quick)")
     ap.add_argument("--out", default=str(ROOT / "docs" / "results" / "detection.md"))
+    ap.add_argument("--jobs", type=int, default=1, help="local processes for the runs (1)")
+    ap.add_argument("--scheduler", help="Dask scheduler address for the runs")
     args = ap.parse_args(argv)
+    EXECUTOR.update(jobs=args.jobs, scheduler=args.scheduler)
     logging.disable(logging.WARNING)
     n_seeds = args.seeds or (5 if args.quick else 20)
     seeds = range(n_seeds)
