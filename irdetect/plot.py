@@ -159,22 +159,12 @@ def tracks_panel(background: np.ndarray | None, shape, overlay: Overlay, *, scal
         grey = stretch(background, limits=(lo, hi), gamma=gamma)
     img = scale_image(grey, scale)
     r = max(4, int(round(2.5 * scale)))
-    tr = overlay.truth
-    for tid in np.unique(tr["target"]):
-        rows = tr[tr["target"] == tid]
-        px, py = _to_px(rows["x"], rows["y"], scale)
-        cv2.polylines(img, [np.round(np.column_stack([px, py])).astype(np.int32)], False,
-                      COLOURS["truth"], 1, cv2.LINE_AA)
+    _paths(img, overlay.truth, "target", COLOURS["truth"], scale)
     det = overlay.detections
     px, py = _to_px(det["x"], det["y"], scale)
     for x, y, k in zip(px, py, det["combined_frame"]):
         cv2.circle(img, (int(round(x)), int(round(y))), r, window_colour(k), 1, cv2.LINE_AA)
-    tp = overlay.track_points
-    for tid in np.unique(tp["track_id"]):
-        rows = tp[tp["track_id"] == tid]
-        px, py = _to_px(rows["x"], rows["y"], scale)
-        cv2.polylines(img, [np.round(np.column_stack([px, py])).astype(np.int32)], False,
-                      COLOURS["tracker"], 1, cv2.LINE_AA)
+    _paths(img, overlay.track_points, "track_id", COLOURS["tracker"], scale)
     fs = 0.45 if scale >= 2 else 0.4
     for row in overlay.tracks:
         if not (np.isfinite(row["x0"]) and np.isfinite(row["vx"])):
@@ -336,3 +326,12 @@ def write_image(path, image: np.ndarray, *, force: bool = False) -> Path:
         if os.path.exists(tmp):
             os.unlink(tmp)
     return path
+
+
+def _paths(img, table, key, colour, scale) -> None:
+    """Draw one polyline per value of ``table[key]`` through its (x, y) rows."""
+    for value in np.unique(table[key]):
+        rows = table[table[key] == value]
+        px, py = _to_px(rows["x"], rows["y"], scale)
+        cv2.polylines(img, [np.round(np.column_stack([px, py])).astype(np.int32)], False,
+                      colour, 1, cv2.LINE_AA)
