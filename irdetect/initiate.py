@@ -37,7 +37,6 @@ import logging
 import math
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
 
 from irdetect import tables
 from irdetect.cluster import subtractive_cluster
@@ -693,6 +692,8 @@ def _cv_batch(win: _Window, ptr, mem, cells, theta, K, p, max_tracks: int = 4):
         if p["fit_confidence"] < 1:
             # chi-square of the fit in the measurements' own error terms, 2n - 4 dof
             chi2 = np.where(members, _fit_error(x, y, t, members, axes) ** 2, 0.0).sum(axis=1)
+            from scipy.stats import chi2 as chi2_dist  # lazy: scipy.stats costs ~1 s to import
+
             limit = chi2_dist.ppf(p["fit_confidence"], np.maximum(2 * n_m - 4, 1))
             good &= (n_m < 3) | (chi2 <= limit)
         for b in np.flatnonzero(good):                 # accepted tracks (a handful)
