@@ -128,10 +128,10 @@ def _sequence_suffixes() -> set[str]:
 
 
 def is_image_folder(path: Path) -> bool:
-    """True when the folder holds an image file: it is one sequence, not a folder of them."""
-    from irdetect.io.sources import IMAGE_SUFFIXES
-    return any(p.suffix.lower() in IMAGE_SUFFIXES and p.is_file() and not p.name.startswith(".")
-               for p in path.iterdir())
+    """True when the folder is one image sequence (its images, or a recording folder's
+    ``frames/``), not a folder of sequences."""
+    from irdetect.io.sources import folder_images
+    return bool(folder_images(path))
 
 
 def _is_results(path: Path) -> bool:

@@ -117,3 +117,25 @@ def test_simulate_dispatches_on_the_preset_kind(cli):
     assert "30 frames of 320x240" in out
     code, _, err = cli("simulate", "z.h5", "--scenario", "zhang2010")
     assert code == 2 and "simulate-scans" in err
+
+
+def test_process_and_evaluate_a_recording_folder(cli, tmp_path):
+    """A folder with frames/ and truth.txt (the shared/data/real layout) needs no options."""
+    import cv2
+
+    from irdetect.simulate import simulate
+
+    frames, truth = simulate("wan2008", rng=2, snr=8, n_frames=36, height=64, width=80,
+                             n_targets=1, directions=[30.0], speed=[0.5, 0.5])
+    (tmp_path / "rec" / "frames").mkdir(parents=True)
+    for i, frame in enumerate(frames):
+        cv2.imwrite(str(tmp_path / "rec" / "frames" / f"{i + 1:04d}.png"), frame)
+    (tmp_path / "rec" / "truth.txt").write_text(
+        "".join(f"{x:.2f} {y:.2f}\n" for x, y in zip(truth["x"], truth["y"])))
+    code, _, err = cli("process", "rec")
+    assert code == 0, err
+    assert (tmp_path / "rec.irdetect.h5").exists()
+    code, out, err = cli("evaluate", "rec.irdetect.h5", "--json")
+    assert code == 0, err
+    import json
+    assert json.loads(out)["detection"]["targets"] == 3

@@ -214,7 +214,25 @@ def natural_key(name: str):
 
 def _images_in(folder: Path) -> list[Path]:
     return sorted((p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES
-                   and p.is_file()), key=lambda p: natural_key(p.name))
+                   and p.is_file() and not p.name.startswith(".")),
+                  key=lambda p: natural_key(p.name))
+
+
+def folder_images(folder: str | os.PathLike) -> list[Path]:
+    """The frames of an image-folder sequence, in natural order (empty if it is none).
+
+    The folder's own images, or else those of its ``frames/`` subfolder when the folder
+    holds no other sequence file (a recording folder: ``frames/`` with ``truth.txt``
+    beside it, the layout of ``shared/data/real``; a folder that also holds .h5, .npy or
+    video files is a folder of sequences). Hidden files are skipped.
+    """
+    folder = Path(folder)
+    files = _images_in(folder)
+    if not files and (folder / "frames").is_dir() and not any(
+            p.suffix.lower() in HDF5_SUFFIXES | VIDEO_SUFFIXES | {".npy"}
+            for p in folder.iterdir()):
+        files = _images_in(folder / "frames")
+    return files
 
 
 class ImageFolderSource(FrameSource):
@@ -229,9 +247,7 @@ class ImageFolderSource(FrameSource):
     def __init__(self, path):
         self.path = os.fspath(path)
         folder = Path(path)
-        self._files = _images_in(folder)
-        if not self._files and (folder / "frames").is_dir():
-            self._files = _images_in(folder / "frames")
+        self._files = folder_images(folder)
         if not self._files:
             raise InputError("the folder holds no images (PNG, TIFF, BMP, JPEG, PGM)", path)
         first = self._load(self._files[0])
