@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from irdetect.suppress import median_mad_sigma
 from irdetect.tables import SEGMENT, empty
 
 RESOLVE = ("all", "unique", "cost")
@@ -133,12 +134,7 @@ def standardise(frames, tile: int = 32) -> list:
     sub = np.stack([np.asarray(f)[:ny * th:2, :nx * tw:2] for f in frames[::3]])
     blocks = sub.reshape(len(sub), ny, sub.shape[1] // ny, nx, sub.shape[2] // nx)
     blocks = blocks.transpose(1, 3, 0, 2, 4).reshape(ny, nx, -1)
-    med = np.median(blocks, axis=2)
-    dev = np.abs(blocks - med[..., None])
-    sc = 1.4826 * np.median(dev, axis=2)
-    flat = sc <= 0
-    if flat.any():
-        sc[flat] = 1.2533 * dev.mean(axis=2)[flat]
+    sc = median_mad_sigma(blocks)[1]
     sc = np.maximum(sc, max(0.25 * float(np.median(sc)), float(np.finfo(np.float32).tiny)))
     inv = cv2.resize((1.0 / sc).astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
     for f in frames:
@@ -150,11 +146,7 @@ def noise_level(frames) -> float:
     """Robust noise sd of matched frames: median over frames of 1.4826 MAD on a 4-px grid."""
     out = []
     for f in frames[::max(1, len(frames) // 6)]:
-        v = np.asarray(f)[::4, ::4].ravel()
-        med = np.median(v)
-        dev = np.abs(v - med)
-        sc = 1.4826 * np.median(dev)
-        out.append(sc if sc > 0 else 1.2533 * dev.mean())
+        out.append(float(median_mad_sigma(np.asarray(f)[::4, ::4].ravel())[1]))
     return float(max(np.median(out), np.finfo(np.float32).tiny)) if out else 1.0
 
 

@@ -267,15 +267,37 @@ def _clean(stack: np.ndarray) -> np.ndarray:
     return out
 
 
+def sorted_median(v: np.ndarray) -> np.ndarray:
+    """``np.median(v, axis=-1)`` (same values) by a full sort, which numpy vectorises:
+    about 10x faster than np.median's partition on many short rows."""
+    v = np.sort(v, axis=-1)
+    n = v.shape[-1]
+    if n % 2:
+        return v[..., n // 2]
+    return (v[..., n // 2 - 1] + v[..., n // 2]) / v.dtype.type(2)
+
+
+def median_mad_sigma(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Median and robust sigma of every row (last axis) of ``v``.
+
+    sigma = 1.4826 x MAD (the standard deviation of a Gaussian); where the MAD is 0 (more
+    than half a row equal, e.g. quantised flat patches) 1.2533 x the mean absolute
+    deviation is taken instead (the same for a Gaussian). Shared by the noise estimates of
+    every stage (``noise_sigma``, ``irdetect.detect``, ``irdetect.correlate``).
+    """
+    med = sorted_median(v)
+    dev = np.abs(v - np.asarray(med)[..., None])
+    sigma = np.asarray(MAD_TO_SIGMA * sorted_median(dev))
+    flat = sigma <= 0
+    if flat.any():
+        sigma = np.where(flat, 1.2533 * dev.mean(axis=-1), sigma)
+    return med, sigma
+
+
 def _robust_sigma(v: np.ndarray) -> float:
     if v.size == 0:
         return float(np.finfo(np.float32).tiny)
-    med = np.median(v)
-    dev = np.abs(v - med)
-    s = MAD_TO_SIGMA * float(np.median(dev))
-    if s <= 0:
-        s = 1.2533 * float(dev.mean())
-    return max(s, float(np.finfo(np.float32).tiny))
+    return max(float(median_mad_sigma(v)[1]), float(np.finfo(np.float32).tiny))
 
 
 def _sigma_map(r: np.ndarray, tile: int) -> np.ndarray:
@@ -283,13 +305,7 @@ def _sigma_map(r: np.ndarray, tile: int) -> np.ndarray:
     ny, nx = max(1, h // tile), max(1, w // tile)
     th, tw = h // ny, w // nx
     blocks = r[:ny * th, :nx * tw].reshape(ny, th, nx, tw).transpose(0, 2, 1, 3)
-    blocks = blocks.reshape(ny, nx, th * tw)
-    med = np.median(blocks, axis=2, keepdims=True)
-    dev = np.abs(blocks - med)
-    sig = MAD_TO_SIGMA * np.median(dev, axis=2)
-    flat = sig <= 0
-    if flat.any():
-        sig[flat] = 1.2533 * dev.mean(axis=2)[flat]
+    sig = median_mad_sigma(blocks.reshape(ny, nx, th * tw))[1]
     sig = np.maximum(sig, np.finfo(np.float32).tiny).astype(np.float32)
     return cv2.resize(sig, (w, h), interpolation=cv2.INTER_LINEAR)
 
@@ -433,9 +449,7 @@ def _fixed_pattern(full: np.ndarray) -> np.ndarray:
 def _median_axis0(stack: np.ndarray) -> np.ndarray:
     """``np.median(stack, axis=0)`` (same values) by sorting each pixel's contiguous
     time series: about 2x faster than the partition along the outer axis."""
-    t = len(stack)
-    v = np.sort(stack.reshape(t, -1).T, axis=1)
-    med = v[:, t // 2] if t % 2 else (v[:, t // 2 - 1] + v[:, t // 2]) / v.dtype.type(2)
+    med = sorted_median(stack.reshape(len(stack), -1).T)
     return med.reshape(stack.shape[1:]).astype(np.float32)
 
 
