@@ -220,20 +220,23 @@ def _check_value(kind, value, where, path):
     return value
 
 
+def read_toml(path: str | os.PathLike) -> dict:
+    """A TOML file as a dict; a missing or invalid file is an InputError naming it."""
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise InputError("file not found", path) from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"not a valid TOML file ({exc})", path) from None
+
+
 def load_config(path: str | os.PathLike | None, cls=ProcessConfig, overrides: dict | None = None):
     """Read a TOML config file into ``cls``; ``None`` gives the defaults.
 
     ``overrides`` is a nested dict applied on top of the file (command-line options).
     """
-    data: dict = {}
-    if path is not None:
-        try:
-            with open(path, "rb") as fh:
-                data = tomllib.load(fh)
-        except FileNotFoundError:
-            raise InputError("config file not found", path) from None
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-            raise InputError(f"not a valid TOML file ({exc})", path) from None
+    data: dict = {} if path is None else read_toml(path)
     for key, value in (overrides or {}).items():
         if isinstance(value, dict):
             data.setdefault(key, {}).update(value)

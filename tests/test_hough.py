@@ -7,6 +7,11 @@ from irdetect.hough import (fuzzy_hough_transform, hough_grid, hough_transform, 
                             parallel_combine, rho_sigma)
 
 
+def _on_line(rho, theta, s):
+    """Points (x, y) at signed distances s along the line rho = x cos(theta) + y sin(theta)."""
+    return rho * math.cos(theta) - s * math.sin(theta), rho * math.sin(theta) + s * math.cos(theta)
+
+
 def test_cell_centres_follow_the_paper():
     g = hough_grid(rho_max=10, n_rho=4, n_theta=4)
     assert np.allclose(g.theta_centres, (np.arange(4) + 0.5) * math.pi / 4)
@@ -16,9 +21,7 @@ def test_cell_centres_follow_the_paper():
 def test_line_peaks_at_its_cell():
     g = hough_grid(rho_max=100, rho_step=1.0, n_theta=180)
     theta, rho = g.theta_centres[60], 30.2
-    s = np.linspace(-40, 40, 15)
-    x = rho * math.cos(theta) - s * math.sin(theta)
-    y = rho * math.sin(theta) + s * math.cos(theta)
+    x, y = _on_line(rho, theta, np.linspace(-40, 40, 15))
     acc = hough_transform(x, y, grid=g)[0]
     j, n = np.unravel_index(np.argmax(acc), acc.shape)
     assert acc.max() == 15 and n == 60 and abs(g.rho_centres[j] - rho) <= 0.5
@@ -27,9 +30,7 @@ def test_line_peaks_at_its_cell():
 def test_fuzzy_noiseless_line_peaks_at_right_cell_and_range_zero_is_safe():
     g = hough_grid(rho_max=100, rho_step=1.0, n_theta=90)
     theta, rho = g.theta_centres[20], 40.0
-    s = np.linspace(-30, 30, 5)
-    x = rho * math.cos(theta) - s * math.sin(theta)
-    y = rho * math.sin(theta) + s * math.cos(theta)
+    x, y = _on_line(rho, theta, np.linspace(-30, 30, 5))
     sr = rho_sigma(g.theta_centres, x=x, y=y, sigma_range=1.0, sigma_azimuth=0.01)
     acc = fuzzy_hough_transform(x, y, grid=g, sigma_rho=sr)[0]
     j, n = np.unravel_index(np.argmax(acc), acc.shape)

@@ -14,9 +14,8 @@ import dataclasses
 import json
 import logging
 import math
-import tomllib
 
-from irdetect.config import InitiateConfig, from_dict
+from irdetect.config import InitiateConfig, from_dict, read_toml
 from irdetect.errors import InputError
 from irdetect.initiate import METHODS, initiate_scans, scan_windows
 
@@ -42,13 +41,7 @@ def add_arguments(p):
 def _params(args, attrs) -> dict:
     data = {}
     if args.config:
-        try:
-            with open(args.config, "rb") as fh:
-                data = tomllib.load(fh).get("initiate", {})
-        except FileNotFoundError:
-            raise InputError("config file not found", args.config) from None
-        except tomllib.TOMLDecodeError as exc:
-            raise InputError(f"not a valid TOML file ({exc})", args.config) from None
+        data = read_toml(args.config).get("initiate", {})
     elif attrs.get("scenario"):
         from irdetect.simulate.presets import preset_kind
         from irdetect.simulate.scans import load_scan_scenario

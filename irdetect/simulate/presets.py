@@ -8,9 +8,9 @@
 from __future__ import annotations
 
 import os
-import tomllib
 from pathlib import Path
 
+from irdetect.config import read_toml
 from irdetect.errors import InputError
 
 PRESETS = Path(__file__).resolve().parents[2] / "data" / "presets"
@@ -22,18 +22,10 @@ def preset_path(name: str | os.PathLike) -> Path:
     return path if path.suffix == ".toml" else PRESETS / f"{name}.toml"
 
 
-def _load(path: Path) -> dict:
-    try:
-        with open(path, "rb") as fh:
-            return tomllib.load(fh)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"not a valid TOML file ({exc})", path) from None
-
-
 def preset_kind(name: str | os.PathLike) -> str | None:
     """The ``kind`` of a preset, or None when there is no such preset."""
     path = preset_path(name)
-    return _load(path).get("kind", "sequence") if path.is_file() else None
+    return read_toml(path).get("kind", "sequence") if path.is_file() else None
 
 
 def read_preset(name: str | os.PathLike, kind: str) -> tuple[dict, Path]:
@@ -49,7 +41,7 @@ def read_preset(name: str | os.PathLike, kind: str) -> tuple[dict, Path]:
     if not path.is_file():
         known = sorted(p.stem for p in PRESETS.glob("*.toml") if preset_kind(p) == kind)
         raise InputError(f"unknown {kind} scenario (presets: {', '.join(known)})", name)
-    data = _load(path)
+    data = read_toml(path)
     data.pop("description", None)
     found = data.pop("kind", "sequence")
     if found != kind:
