@@ -10,7 +10,7 @@ point-spread function sampled at pixel centres,
     S_j(x, y, t) = A_j exp(-((x - x_j(t))^2 + (y - y_j(t))^2) / (2 psf_sigma^2)),
 
 of peak amplitude A_j = snr * noise_sigma (peak SNR; in dB 20 log10 snr) at a sub-pixel
-position moving at constant velocity. ``psf_sigma = 0.6`` puts 93 % of the energy in 3x3 px.
+position moving at constant velocity. ``psf_sigma = 0.6`` puts 99 % of the sampled energy in 3x3 px.
 Structured clutter is optional: a smooth cloud-like field drifting slowly, a bright
 tilted horizon edge and hot pixels. Coordinates: x = column, y = row, pixels.
 """
