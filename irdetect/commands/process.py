@@ -16,7 +16,7 @@ import logging
 import os
 from pathlib import Path
 
-from irdetect.batch import SCHEDULER_ENV, is_image_folder
+from irdetect.batch import SCHEDULER_ENV, is_image_folder, output_name
 from irdetect.config import load_config
 from irdetect.commands.video import add_style_arguments as add_video_arguments
 from irdetect.commands.video import render_after_process
@@ -50,13 +50,6 @@ def add_arguments(p):
     add_video_arguments(p)
 
 
-def default_output(input_path) -> Path:
-    """``<input name>.irdetect.h5`` in the current folder."""
-    path = Path(input_path)
-    name = path.name if path.is_dir() else path.stem
-    return Path(f"{name}.irdetect.h5")
-
-
 def run(args) -> int:
     config = load_config(args.config)
     if args.video and _is_batch(args):
@@ -66,13 +59,13 @@ def run(args) -> int:
     from irdetect.pipeline import process_file
 
     args.input = args.inputs[0]
-    output = args.output or default_output(args.input)
+    output = args.output or output_name(args.input)  # in the current folder
     if args.video:
         check_video_path(args.video, args.force)       # fail before the long run
     summary = process_file(args.input, output, config, dataset=args.dataset, force=args.force,
                            progress=args.progress)
     log.info("wrote %s: %d frames, %d detections, %d tracks in %.1f s", output,
-                summary["frames"], summary["detections"], summary["tracks"], summary["seconds"])
+             summary["frames"], summary["detections"], summary["tracks"], summary["seconds"])
     if args.video:
         render_after_process(args.input, output, args)
     return 0
