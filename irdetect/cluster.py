@@ -146,23 +146,6 @@ def subtractive_cluster(x, *, radii=0.5, squash: float = 1.25, accept_ratio: flo
     return _subclust(u, x, r, squash, accept_ratio, reject_ratio, w, mirror, g, labels)
 
 
-def _sq_dist(u, v, scale, mirror_v=None):
-    """Scaled squared distances between rows of u (M, D) and v (K, D), wrap-aware."""
-    def sq(a, b):
-        out = np.zeros((len(a), len(b)))
-        for k in range(a.shape[1]):            # per dimension: no (M, K, D) temporary
-            out += np.subtract.outer(a[:, k] / scale[k], b[:, k] / scale[k]) ** 2
-        return out
-
-    dd = sq(u, v)
-    if mirror_v is not None:
-        m = mirror_v.copy()
-        np.minimum(dd, sq(u, m), out=dd)              # theta - pi
-        m[:, 1] = 2 * v[:, 1] - mirror_v[:, 1]
-        np.minimum(dd, sq(u, m), out=dd)              # theta + pi
-    return dd
-
-
 def _csr_positions(starts, counts):
     """Concatenated ranges [starts[i], starts[i] + counts[i])."""
     return np.repeat(starts - np.cumsum(np.r_[0, counts[:-1]]), counts) + np.arange(counts.sum())

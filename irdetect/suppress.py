@@ -246,12 +246,6 @@ def noise_sigma(residual, *, tile: int | None = None, sample: int = 2) -> np.nda
     return _sigma_map(r, int(tile))
 
 
-def robust_location_scale(values) -> tuple[float, float]:
-    """(median, robust sigma) of a sample; sigma as in ``noise_sigma``."""
-    v = np.asarray(values, dtype=np.float32).ravel()
-    return float(np.median(v)), _robust_sigma(v)
-
-
 # --- kernels --------------------------------------------------------------------------
 
 def _clean(stack: np.ndarray) -> np.ndarray:
