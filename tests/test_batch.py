@@ -270,8 +270,8 @@ def test_missing_distributed_gives_an_install_hint(monkeypatch):
 @pytest.fixture(scope="module")
 def cluster():
     """A 2-worker LocalCluster (processes) on loopback; a task may kill 1 worker and retry."""
-    dask = pytest.importorskip("dask")
-    distributed = pytest.importorskip("distributed")
+    import dask
+    import distributed
     import cloudpickle
 
     cloudpickle.register_pickle_by_value(sys.modules[__name__])    # workers lack tests/
@@ -311,7 +311,6 @@ def test_dask_cluster_gives_the_same_tables(seqdir, reference, cluster, tmp_path
 
 
 def test_unreachable_scheduler_is_an_input_error(seqdir, tmp_path, cli, monkeypatch):
-    pytest.importorskip("distributed")
     monkeypatch.setattr("irdetect.batch.CONNECT_TIMEOUT", 1.0)
     code, _, err = cli("process", seqdir[0], "--out-dir", "o", "--scheduler",
                        "tcp://127.0.0.1:9")

@@ -51,9 +51,6 @@ def test_user_errors_exit_2_without_partial_output(tmp_path, capsys):
 
 
 def test_evaluate_scores_track_points(harbour_file, tmp_path, capsys):
-    evaluate = pytest.importorskip("irdetect.commands.evaluate")
-    if "track_points" not in [table for _, table, _ in evaluate.SECTIONS]:
-        pytest.skip("irdetect evaluate has no CLEAR-MOT section yet")
     path, _ = harbour_file
     out = tmp_path / "t.h5"
     assert main(["track", str(path), "-o", str(out), "--sea-sky", "-q"]) == 0
