@@ -23,8 +23,6 @@ IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg", ".pgm"}
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".mpg", ".mpeg", ".wmv", ".m4v"}
 HDF5_SUFFIXES = {".h5", ".hdf5", ".hdf", ".he5"}
 SUPPORTED_DTYPES = (np.uint8, np.uint16, np.int16, np.int32, np.float32, np.float64)
-#: frames per read when checking a whole sequence for NaN / inf
-_CHECK_BLOCK = 256
 
 
 class FrameSource:
@@ -87,16 +85,6 @@ class FrameSource:
             raise ValueError(f"window length and step must be >= 1, got {length}, {step}")
         for start in range(0, len(self), step):
             yield start, self[start:start + length]
-
-    def check_values(self) -> None:
-        """Raise InputError when a floating-point sequence holds NaN or inf."""
-        if self.dtype.kind != "f":
-            return
-        for start, block in self.windows(_CHECK_BLOCK):
-            bad = ~np.isfinite(block)
-            if bad.any():
-                frame = start + int(np.argmax(bad.reshape(len(block), -1).any(axis=1)))
-                raise InputError(f"frame {frame} holds NaN or inf values", self.path)
 
     def close(self) -> None:
         pass
@@ -274,11 +262,6 @@ class ImageFolderSource(FrameSource):
                                  f"{self.shape[2]}x{self.shape[1]} {self.dtype}", self.path)
             out[i] = image
         return out
-
-    def check_values(self) -> None:
-        """Read every image once: mixed sizes or unreadable files fail here, not mid-run."""
-        for _ in self.windows(_CHECK_BLOCK):
-            pass
 
 
 class VideoSource(FrameSource):
