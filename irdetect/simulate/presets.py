@@ -10,10 +10,11 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from irdetect import data_dir
 from irdetect.config import read_toml
 from irdetect.errors import InputError
 
-PRESETS = Path(__file__).resolve().parents[2] / "data" / "presets"
+PRESETS = data_dir("presets")
 
 
 def preset_path(name: str | os.PathLike) -> Path:
