@@ -223,11 +223,13 @@ def track_significance(evidence: Evidence, points: np.ndarray, screen: float = -
         for a in range(0, len(live), chunk):      # a loop over chunks of segments
             rows = live[a:a + chunk]
             cc = c[rows, None, :] + v[rows, None, :] * shift[None, :, None] + g[None, :, :2]
-            vv = v[rows, None, :] + g[None, :, 2:]
+            # no velocity offsets (the first stage): one velocity per segment, and
+            # _sample_sum forms v dt once for all its hypotheses
+            vv = v[rows, None, :] + g[None, :, 2:] if len(dvel) > 1 else v[rows, None, :]
             total = _sample_sum(flat, offs, dts, cc, vv, h, w, bilinear=stage > 0)
             best = total.argmax(1)
             k = np.arange(len(rows))
-            c[rows], v[rows] = cc[k, best], vv[k, best]
+            c[rows], v[rows] = cc[k, best], vv[k, best if len(dvel) > 1 else 0]
             z[rows] = total[k, best] / norm
     return z, c, v
 
@@ -260,21 +262,35 @@ def ring_significance(evidence: Evidence, c: np.ndarray, v: np.ndarray) -> np.nd
     return total.max(axis=1) / (evidence.sigma * np.sqrt(n_f))
 
 
-#: samples (segments x hypotheses x frames) per chunk of ``track_significance``
-CHUNK = 1 << 13
+#: samples (segments x hypotheses x frames) per chunk of ``track_significance`` (a few
+#: MB of temporaries; larger chunks spend less time in Python per sample)
+CHUNK = 1 << 18
 
 
 def _sample_sum(flat, offs, dts, cc, vv, h, w, bilinear):
-    """sum over frames of the stacked frames at c + v dt: (n, hyp) float32."""
-    x = vv[..., 0, None].astype(np.float32) * dts + cc[..., 0, None].astype(np.float32)
-    y = vv[..., 1, None].astype(np.float32) * dts + cc[..., 1, None].astype(np.float32)
+    """sum over frames of the stacked frames at c + v dt: (n, hyp) float32.
+
+    float32 throughout, in place where it can be (few temporaries); the arithmetic and
+    the order of the sum over frames are fixed (a rewrite must give the same values).
+    """
+    f32 = np.float32
+    n, hyp = cc.shape[:2]
+    # v dt first: with no velocity offsets it is the same for every hypothesis (a
+    # broadcast product, the same values as one per hypothesis)
+    x = np.multiply(vv[..., 0, None].astype(f32), dts)
+    x = np.add(x, cc[..., 0, None].astype(f32), out=x if x.shape[1] == hyp else None)
+    y = np.multiply(vv[..., 1, None].astype(f32), dts)
+    y = np.add(y, cc[..., 1, None].astype(f32), out=y if y.shape[1] == hyp else None)
     if not bilinear:
-        xi = np.clip(x + np.float32(0.5), 0, w - 1).astype(offs.dtype)
-        yi = np.clip(y + np.float32(0.5), 0, h - 1).astype(offs.dtype)
-        yi *= w
-        yi += xi
-        yi += offs
-        return flat[yi].sum(axis=-1)
+        x += f32(0.5)
+        y += f32(0.5)
+        np.clip(x, 0, w - 1, out=x)
+        np.clip(y, 0, h - 1, out=y)
+        index = y.astype(offs.dtype)
+        index *= w
+        index += x.astype(offs.dtype)
+        index += offs
+        return flat.take(index).sum(axis=-1)
     np.clip(x, 0, w - 1.001, out=x)
     np.clip(y, 0, h - 1.001, out=y)
     x0, base = x.astype(offs.dtype), y.astype(offs.dtype)
@@ -283,14 +299,22 @@ def _sample_sum(flat, offs, dts, cc, vv, h, w, bilinear):
     base *= w
     base += x0
     base += offs
-    top = flat[base]
-    top += (flat[base + 1] - top) * x
+    top = flat.take(base)                            # top-left
+    base += 1
+    right = flat.take(base)                          # top-right
+    right -= top
+    right *= x
+    top += right                                     # top row at fx
     base += w
-    bottom = flat[base]
-    bottom += (flat[base + 1] - bottom) * x
-    bottom -= top
-    bottom *= y
-    top += bottom
+    bottom = flat.take(base)                         # bottom-right
+    base -= 1
+    left = flat.take(base)                           # bottom-left
+    bottom -= left
+    bottom *= x
+    left += bottom                                   # bottom row at fx
+    left -= top
+    left *= y
+    top += left
     return top.sum(axis=-1)
 
 
