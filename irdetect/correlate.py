@@ -65,9 +65,11 @@ class Evidence:
 
     Attributes
     ----------
-    frames : sequence of ndarray of float32 of shape (H, W)
+    frames : ndarray of float32 of shape (F, H, W), or a sequence of (H, W) frames or of
+        (F_j, H, W) blocks (F = sum F_j)
         Suppressed frames smoothed by the target's PSF (``matched_frame``): every frame
-        of the 3 windows, each once.
+        of the 3 windows, each once. Blocks (the pipeline passes each window's frames)
+        are sampled where they lie, without a stacked copy.
     index : ndarray of shape (F,)
         Frame index of each of ``frames``.
     times : tuple of 3 floats
@@ -91,6 +93,44 @@ class Evidence:
     leads: tuple = (0.0,)
 
 
+def _flat_frames(evidence: Evidence):
+    """(_Blocks, offset of each frame in its block, F, H, W): frame f is sampled at
+    ``offset[f] + y W + x`` of its block."""
+    frames = evidence.frames
+    if isinstance(frames, np.ndarray):
+        blocks = [frames]
+    elif len(frames) and np.ndim(frames[0]) == 3:
+        blocks = list(frames)
+    else:
+        blocks = [np.stack(frames)]
+    blocks = [np.ascontiguousarray(b) for b in blocks]
+    _, h, w = blocks[0].shape
+    offs = np.concatenate([np.arange(len(b), dtype=np.int64) for b in blocks]) * (h * w)
+    offs = offs.astype(np.int32 if max(b.size for b in blocks) < 2 ** 31 - 1 else np.int64)
+    return _Blocks(blocks), offs, len(offs), h, w
+
+
+class _Blocks:
+    """Frames in C-contiguous blocks along the frame axis, sampled in place:
+    ``take(index)`` with ``index`` (..., F) of flat positions inside each frame's block
+    returns the samples (..., F), the same values as from one stacked array."""
+
+    def __init__(self, blocks):
+        self.flats = [b.reshape(-1) for b in blocks]
+        ends = np.cumsum([len(b) for b in blocks])
+        self.spans = list(zip(ends - [len(b) for b in blocks], ends))
+
+    def take(self, index: np.ndarray) -> np.ndarray:
+        if len(self.flats) == 1:
+            return self.flats[0].take(index)
+        out = np.empty(index.shape, self.flats[0].dtype)
+        for flat, (a, b) in zip(self.flats, self.spans):
+            # positions are inside the block by construction (clipped coordinates), so
+            # "clip" changes nothing and spares numpy the buffered bounds check
+            np.take(flat, index[..., a:b], out=out[..., a:b], mode="clip")
+        return out
+
+
 #: the ``dp`` merit's fused point trails its target: the merit of the path's recent
 #: pixels is almost as high as at its end, so the fused centroid of a target's blob sits
 #: behind the target's position in the window's last frame, the more so the brighter the
@@ -99,17 +139,21 @@ class Evidence:
 DP_LEADS = (1.0, 3.0, 5.0, 7.0)
 
 
-def matched_frame(residual, smooth: float) -> np.ndarray:
+def matched_frame(residual, smooth: float, out: np.ndarray | None = None) -> np.ndarray:
     """One suppressed frame smoothed by a Gaussian of ``smooth`` px (the PSF's matched
     filter), minus its median (on a 4-px grid).
 
-    ``residual`` : ndarray (H, W); returns float32 (H, W). ``smooth = 0``: no smoothing.
+    ``residual`` : ndarray (H, W); returns float32 (H, W), written into ``out`` (float32
+    (H, W), may be ``residual`` itself) when given. ``smooth = 0``: no smoothing.
     """
     f = np.asarray(residual, dtype=np.float32)
     if smooth > 0:
-        f = cv2.GaussianBlur(f, (0, 0), float(smooth), borderType=cv2.BORDER_REFLECT)
-    else:
+        f = cv2.GaussianBlur(f, (0, 0), float(smooth), dst=out, borderType=cv2.BORDER_REFLECT)
+    elif out is None:
         f = f.copy()
+    elif out is not f:
+        out[...] = f
+        f = out
     # a suppressor may leave a non-zero level (the top-hat's residual is >= 0): summed
     # over many frames it would read as signal
     f -= np.float32(np.median(f[::4, ::4]))
@@ -186,20 +230,16 @@ def track_significance(evidence: Evidence, points: np.ndarray, screen: float = -
     -----
     The coarse stage samples the nearest pixel (a 1-px grid on PSF-smoothed frames),
     the finer stages bilinearly. Vectorised over segments, hypotheses and frames, in
-    chunks of about ``CHUNK`` samples (bounded temporary memory).
+    chunks of ``CHUNK`` samples, or up to a 16th of the evidence's size for large frames
+    (temporary memory bounded by the evidence the pipeline holds anyway).
     """
     p = np.asarray(points, np.float64).reshape(-1, 3, 2)
     if len(p) == 0:
         return np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2))
-    stack = evidence.frames if isinstance(evidence.frames, np.ndarray) \
-        else np.stack(evidence.frames)
-    n_f, h, w = stack.shape
-    flat = stack.reshape(-1)
+    frames, offs, n_f, h, w = _flat_frames(evidence)
     t = np.asarray(evidence.index, np.float64)
     tm = float(t.mean())
     dts = (t - tm).astype(np.float32)
-    offs = np.arange(n_f, dtype=np.int64) * (h * w)
-    offs = offs.astype(np.int32) if flat.size < 2 ** 31 - 1 else offs
     times = np.asarray(evidence.times, np.float64)
     tt = times - times.mean()
     v = (tt[None, :, None] * (p - p.mean(1, keepdims=True))).sum(1) / (tt ** 2).sum()
@@ -219,14 +259,14 @@ def track_significance(evidence: Evidence, points: np.ndarray, screen: float = -
         else:
             shift = np.zeros(len(g))
         n_hyp = len(g)
-        chunk = max(1, CHUNK // (n_hyp * n_f))
+        chunk = max(1, max(CHUNK, min(CHUNK_MAX, n_f * h * w // 16)) // (n_hyp * n_f))
         for a in range(0, len(live), chunk):      # a loop over chunks of segments
             rows = live[a:a + chunk]
             cc = c[rows, None, :] + v[rows, None, :] * shift[None, :, None] + g[None, :, :2]
             # no velocity offsets (the first stage): one velocity per segment, and
             # _sample_sum forms v dt once for all its hypotheses
             vv = v[rows, None, :] + g[None, :, 2:] if len(dvel) > 1 else v[rows, None, :]
-            total = _sample_sum(flat, offs, dts, cc, vv, h, w, bilinear=stage > 0)
+            total = _sample_sum(frames, offs, dts, cc, vv, h, w, bilinear=stage > 0)
             best = total.argmax(1)
             k = np.arange(len(rows))
             c[rows], v[rows] = cc[k, best], vv[k, best if len(dvel) > 1 else 0]
@@ -246,28 +286,24 @@ def ring_significance(evidence: Evidence, c: np.ndarray, v: np.ndarray) -> np.nd
     velocity v: (n,) in the units of ``track_significance``."""
     if len(c) == 0:
         return np.zeros(0)
-    stack = evidence.frames if isinstance(evidence.frames, np.ndarray) \
-        else np.stack(evidence.frames)
-    n_f, h, w = stack.shape
-    flat = stack.reshape(-1)
+    frames, offs, n_f, h, w = _flat_frames(evidence)
     t = np.asarray(evidence.index, np.float64)
     dts = (t - t.mean()).astype(np.float32)
-    offs = (np.arange(n_f, dtype=np.int64) * (h * w)).astype(
-        np.int32 if flat.size < 2 ** 31 - 1 else np.int64)
     a = np.deg2rad(np.arange(0, 360, 45))
     ring = RING_PX * np.column_stack([np.cos(a), np.sin(a)])              # (8, 2)
     cc = c[:, None, :] + ring[None]
     vv = np.repeat(v[:, None, :], len(ring), axis=1)
-    total = _sample_sum(flat, offs, dts, cc, vv, h, w, bilinear=True)
+    total = _sample_sum(frames, offs, dts, cc, vv, h, w, bilinear=True)
     return total.max(axis=1) / (evidence.sigma * np.sqrt(n_f))
 
 
-#: samples (segments x hypotheses x frames) per chunk of ``track_significance`` (a few
-#: MB of temporaries; larger chunks spend less time in Python per sample)
-CHUNK = 1 << 18
+#: samples (segments x hypotheses x frames) per chunk of ``track_significance``
+CHUNK = 1 << 13
+#: largest chunk, for large evidence stacks (fewer Python rounds per sample)
+CHUNK_MAX = 1 << 18
 
 
-def _sample_sum(flat, offs, dts, cc, vv, h, w, bilinear):
+def _sample_sum(frames, offs, dts, cc, vv, h, w, bilinear):
     """sum over frames of the stacked frames at c + v dt: (n, hyp) float32.
 
     float32 throughout, in place where it can be (few temporaries); the arithmetic and
@@ -290,7 +326,7 @@ def _sample_sum(flat, offs, dts, cc, vv, h, w, bilinear):
         index *= w
         index += x.astype(offs.dtype)
         index += offs
-        return flat.take(index).sum(axis=-1)
+        return frames.take(index).sum(axis=-1)
     np.clip(x, 0, w - 1.001, out=x)
     np.clip(y, 0, h - 1.001, out=y)
     x0, base = x.astype(offs.dtype), y.astype(offs.dtype)
@@ -299,16 +335,16 @@ def _sample_sum(flat, offs, dts, cc, vv, h, w, bilinear):
     base *= w
     base += x0
     base += offs
-    top = flat.take(base)                            # top-left
+    top = frames.take(base)                          # top-left
     base += 1
-    right = flat.take(base)                          # top-right
+    right = frames.take(base)                        # top-right
     right -= top
     right *= x
     top += right                                     # top row at fx
     base += w
-    bottom = flat.take(base)                         # bottom-right
+    bottom = frames.take(base)                       # bottom-right
     base -= 1
-    left = flat.take(base)                           # bottom-left
+    left = frames.take(base)                         # bottom-left
     bottom -= left
     bottom *= x
     left += bottom                                   # bottom row at fx

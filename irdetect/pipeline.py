@@ -118,10 +118,26 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
         _lap(timings, "read", t0)
         return pool.submit(_front, block, previous, params, timings)
 
+    corrs: deque = deque()       # correlations of window triples submitted, in order
+    first = 0                    # the oldest pending window
+
+    def take() -> dict:
+        """Confirm the oldest triple's points by its segments; emit its first window."""
+        nonlocal segment_id, first
+        corr = corrs.popleft().result()
+        segments = corr.segments
+        segments["combined_frame"] = first
+        segments["segment_id"] = np.arange(segment_id, segment_id + len(segments))
+        segment_id += len(segments)
+        for i, p in enumerate(list(pending)[:N_CORRELATE]):
+            p.confirm(corr.index[:, i], segments, corr.positions[:, i])
+        first += 1
+        return pending.popleft().emit(segments)
+
     try:
         submitted = 0
         for k, s in enumerate(starts):
-            while submitted < len(starts) and len(fronts) < (1 if pool is None else 2 * workers):
+            while submitted < len(starts) and len(fronts) < (1 if pool is None else workers):
                 fronts.append(submit(submitted))
                 submitted += 1
             cand, n_pixels, matched = fronts.popleft().result()
@@ -131,22 +147,21 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
                                     matched, int(s), config.correlate.tolerance))
             log.debug("combined frame %d (frames %d-%d): %d candidate pixels, %d fused points",
                       k, s, s + cc.length - 1, n_pixels, len(cand))
-            segments = tables.empty(tables.SEGMENT)
-            if len(pending) == N_CORRELATE:
-                t0 = time.perf_counter()
-                corr = correlate(*(p.table for p in pending), cc.step,
-                                 _evidence(pending, cc), **params.correlate)
-                _lap(timings, "correlate", t0)
-                segments = corr.segments
-                segments["combined_frame"] = k - 2
-                segments["segment_id"] = np.arange(segment_id, segment_id + len(segments))
-                segment_id += len(segments)
-                for i, p in enumerate(pending):
-                    p.confirm(corr.index[:, i], segments, corr.positions[:, i])
-                yield pending.popleft().emit(segments)
+            if k >= N_CORRELATE - 1:
+                # windows k-2, k-1, k: with a pool their correlation runs beside the next
+                # windows' front end; the results are taken up in order
+                triple = list(pending)[-N_CORRELATE:]
+                if pool is None:
+                    corrs.append(_Ready(_correlate(triple, cc, params, timings)))
+                else:
+                    corrs.append(pool.submit(_correlate, triple, cc, params, timings))
+            while len(corrs) > (0 if pool is None else workers):
+                yield take()
             if bar is not None:
                 bar.update(int(min(starts[k + 1] if k + 1 < len(starts) else n_frames,
                                    n_frames) - bar.n))
+        while corrs:
+            yield take()
         while pending:
             yield pending.popleft().emit(tables.empty(tables.SEGMENT))
     finally:
@@ -154,6 +169,15 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
             pool.shutdown(wait=True, cancel_futures=True)
         if bar is not None:
             bar.close()
+
+
+def _correlate(triple, cc, params: "_StageParams", timings: dict | None):
+    """The correlation of 3 pending windows (``correlate`` with their evidence)."""
+    t0 = time.perf_counter()
+    corr = correlate(*(p.table for p in triple), cc.step, _evidence(triple, cc),
+                     **params.correlate)
+    _lap(timings, "correlate", t0)
+    return corr
 
 
 class _StageParams:
@@ -173,7 +197,7 @@ class _StageParams:
 def _front(block, previous, params: _StageParams, timings: dict | None):
     """One window's suppression, combination, detection and fusion.
 
-    Returns (candidates, candidate pixels, matched residual frames or None).
+    Returns (candidates, candidate pixels, matched residual frames (L, H, W) or None).
     """
     t = time.perf_counter()
     residual = suppress(block, previous=previous, **params.suppress)
@@ -184,11 +208,14 @@ def _front(block, previous, params: _StageParams, timings: dict | None):
         for r in residual:
             cv2.GaussianBlur(r, (0, 0), params.psf, dst=r, borderType=cv2.BORDER_REFLECT)
         comb = combine(residual, **{**params.combine, "dp_smooth": 0.0})[0]
-        matched = standardise([matched_frame(r, 0.0) for r in residual])
     else:
         comb = combine(residual, **params.combine)[0]
-        matched = (standardise([matched_frame(r, params.psf) for r in residual])
-                   if params.matched else None)
+    matched = None
+    if params.matched:
+        # the residuals become the matched frames in place (no second window of frames)
+        smooth = 0.0 if params.combine["projection"] == "dp" and params.psf > 0 else params.psf
+        standardise([matched_frame(r, smooth, out=r) for r in residual])
+        matched = residual
     del residual
     t = _lap(timings, "combine", t)
     det = detect(comb, **params.detect)
@@ -202,21 +229,24 @@ def _evidence(pending, cc) -> Evidence | None:
     """The matched frames of the 3 pending windows, each frame once (windows may overlap)."""
     if pending[0].matched is None:
         return None
-    frames, index = [], []
+    blocks, frames, index = [], [], []
     for p in pending:
-        for i, f in enumerate(p.matched):
-            if not index or p.start + i > index[-1]:
-                frames.append(f)
-                index.append(p.start + i)
+        # the frames after the last one taken: the window's tail, a block in place
+        first = 0 if not index else max(0, index[-1] + 1 - p.start)
+        if first < len(p.matched):
+            blocks.append(p.matched[first:])
+            frames.extend(p.matched[first:])
+            index.extend(range(p.start + first, p.start + len(p.matched)))
     # the dp merit's fused point sits near the window's last frame (trailing its target
     # by some frames: DP_LEADS); other projections' at the window's middle
     mid = (cc.length - 1) / 2.0
     dp = cc.projection == "dp"
     at = cc.length - 1 if dp else mid
-    return Evidence(frames=np.stack(frames), index=np.array(index),
+    return Evidence(frames=blocks, index=np.array(index),
                     times=tuple(p.start + at for p in pending),
                     report=tuple(p.start + mid for p in pending), sigma=noise_level(frames),
                     leads=DP_LEADS if dp else (0.0,))
+
 
 
 class _Ready:

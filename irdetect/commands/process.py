@@ -25,6 +25,9 @@ from irdetect.errors import InputError
 
 log = logging.getLogger(__name__)
 
+#: ``--threads`` default: best measured on 2 cores (docs/results/throughput.md)
+DEFAULT_THREADS = 2
+
 
 def add_arguments(p):
     p.add_argument("inputs", nargs="+", metavar="INPUT",
@@ -42,6 +45,10 @@ def add_arguments(p):
                    help="batch: Dask scheduler address (tcp://host:8786) or scheduler JSON "
                    f"file (default: ${SCHEDULER_ENV}); needs irdetect[distributed]")
     p.add_argument("--config", help="TOML file with one table per stage (docs/cli.md)")
+    p.add_argument("--threads", type=int, metavar="N",
+                   help=f"single input: threads over windows (default {DEFAULT_THREADS}: the "
+                   "correlation of each window triple runs beside the next windows' front "
+                   "end); the results do not depend on it")
     p.add_argument("--dataset", help="HDF5 input: dataset path (default /frames)")
     p.add_argument("--force", action="store_true",
                    help="overwrite an existing output (batch: redo finished inputs)")
@@ -54,7 +61,12 @@ def run(args) -> int:
     config = load_config(args.config)
     if args.video and _is_batch(args):
         raise InputError("--video needs a single input (use `irdetect video` per result)")
+    if args.threads is not None and args.threads < 1:
+        raise InputError(f"--threads must be >= 1, got {args.threads}")
     if _is_batch(args):
+        if args.threads is not None:
+            raise InputError("--threads is for a single input (a batch runs --jobs processes "
+                             "of one thread each)")
         return run_batch(args, config)
     from irdetect.pipeline import process_file
 
@@ -63,7 +75,7 @@ def run(args) -> int:
     if args.video:
         check_video_path(args.video, args.force)       # fail before the long run
     summary = process_file(args.input, output, config, dataset=args.dataset, force=args.force,
-                           progress=args.progress)
+                           progress=args.progress, workers=args.threads or DEFAULT_THREADS)
     log.info("wrote %s: %d frames, %d detections, %d tracks in %.1f s", output,
              summary["frames"], summary["detections"], summary["tracks"], summary["seconds"])
     if args.video:
