@@ -87,6 +87,7 @@ class CorrelateConfig:
     resolve: str = "cost"
     min_score: float = 3.5
     verify: float = 6.5
+    verify_local: float = 4.0
 
 
 # --- track initiation (zhang2010, liang2015; issues 4, 5) -----------------------------
