@@ -64,6 +64,7 @@ class DetectConfig:
     tile: int = 32
     smooth: float = 0.0
     directions: int = 4
+    sample: int = 2
 
 
 @dataclass(frozen=True)
