@@ -6,16 +6,18 @@ For each frame size (256x256, 320x240, 640x512; uint16, simulated into a tempora
 
 1. the raw floor: reading the frames with h5py (chunk-aligned ``read_direct`` into one
    buffer) and taking the max of every 12-frame window;
-2. ``irdetect process`` end to end as a child process (the CLI a user runs): wall time
-   with and without interpreter start-up and imports, CPU time, peak RSS;
+2. ``irdetect process`` end to end as a child process (the CLI a user runs), for the
+   default configuration and ``--profile fast``, each with the CLI's default 2 threads
+   and with ``--threads 1``: wall time with and without interpreter start-up and
+   imports, CPU time, peak RSS;
 3. per-stage seconds (``process_file(timings=...)`` in a child process), with 1 and 2
-   worker threads, for the default configuration and for ``suppress.method =
-   "temporal"`` (the static-camera path);
+   worker threads, for the default configuration, for ``suppress.method =
+   "temporal"`` (the static-camera path) and for the ``fast`` profile;
 4. trackpy ``locate`` frames/s on the same frames (the peer a user would reach for;
    skipped with a note when trackpy is not installed: it is not a dependency).
 
-Then streaming memory: peak RSS of ``irdetect process`` on 20,000 frames of 256x256
-(``--long``) against the 1,200-frame run.
+Then streaming memory: peak RSS of ``irdetect process`` (temporal suppressor, and the fast
+profile) on 20,000 frames of 256x256 (``--long``) against the 1,200-frame run.
 
 The machine has 2 cores; other sessions may be loading them, so the table records the
 load average before and after and reports CPU-time frames/s next to wall-clock frames/s.
@@ -46,8 +48,14 @@ SIZES = ((256, 256), (240, 320), (512, 640))    # (height, width)
 STAGES = ("read", "suppress", "combine", "detect", "fuse", "correlate", "write", "initiate")
 TEMPORAL = '[suppress]\nmethod = "temporal"\n'
 GOAL_FPS = {(256, 256): 3000, (512, 640): 500}
-#: per-stage runs: (label, config, workers)
-RUNS = (("default (auto)", None, 1), ("temporal", "temporal", 1), ("temporal", "temporal", 2))
+#: per-stage runs: (label, profile, temporal config?, workers)
+RUNS = (("default (auto)", "default", False, 1), ("default (auto)", "default", False, 2),
+        ("temporal", "default", True, 1), ("temporal", "default", True, 2),
+        ("fast", "fast", False, 1), ("fast", "fast", False, 2))
+#: ``irdetect process`` runs per size: (label, options); the CLI's default is --threads 2
+CLI_RUNS = (("default", []), ("default --threads 1", ["--threads", "1"]),
+            ("--profile fast", ["--profile", "fast"]),
+            ("--profile fast --threads 1", ["--profile", "fast", "--threads", "1"]))
 
 
 # --- inputs -----------------------------------------------------------------------------
@@ -146,12 +154,13 @@ def _child(cmd: list[str]) -> tuple[str, str, dict]:
                             "rss_mb": int(m.group(1)) / 1024.0 if m else float("nan")}
 
 
-def run_cli(path: Path, out: Path, config: Path | None = None) -> dict:
+def run_cli(path: Path, out: Path, config: Path | None = None,
+            options: list[str] | None = None) -> dict:
     """``irdetect process`` as a user runs it: wall (with start-up), in-run seconds, RSS."""
     cmd = [sys.executable, "-c", CLI, "process", str(path), "-o", str(out), "--force"]
     if config is not None:
         cmd += ["--config", str(config)]
-    _, stderr, usage = _child(cmd)
+    _, stderr, usage = _child(cmd + list(options or []))
     m = re.search(r"^RUN_SECONDS ([0-9.e+-]+)$", stderr, re.M)
     return {"run": float(m.group(1)) if m else float("nan"), **usage}
 
@@ -159,21 +168,25 @@ def run_cli(path: Path, out: Path, config: Path | None = None) -> dict:
 CHILD = PEAK + """
 import json, sys, time
 import irdetect.initiate    # imported before the clock starts, as the CLI does at start-up
-from irdetect.config import load_config
+from irdetect.profiles import load_profile
 from irdetect.pipeline import process_file
-path, out, config, workers = sys.argv[1], sys.argv[2], sys.argv[3] or None, int(sys.argv[4])
+path, out, config, workers, profile = (sys.argv[1], sys.argv[2], sys.argv[3] or None,
+                                       int(sys.argv[4]), sys.argv[5])
 timings = {}
 t0, c0 = time.perf_counter(), time.process_time()
-r = process_file(path, out, load_config(config), force=True, workers=workers, timings=timings)
+r = process_file(path, out, load_profile(profile, config), force=True, workers=workers,
+                 timings=timings)
 print(json.dumps({"wall": time.perf_counter() - t0, "proc_cpu": time.process_time() - c0,
                   "timings": timings, "detections": r["detections"]}))
 _peak()
 """
 
 
-def run_stages(path: Path, out: Path, config: Path | None, workers: int) -> dict:
+def run_stages(path: Path, out: Path, config: Path | None, workers: int,
+               profile: str = "default") -> dict:
     """Per-stage seconds of ``process_file`` in a child process."""
-    cmd = [sys.executable, "-c", CHILD, str(path), str(out), str(config or ""), str(workers)]
+    cmd = [sys.executable, "-c", CHILD, str(path), str(out), str(config or ""), str(workers),
+           profile]
     stdout, _, usage = _child(cmd)
     usage.pop("wall")           # the child's own wall time (without start-up) is kept
     return {**json.loads(stdout.strip().splitlines()[-1]), **usage}
@@ -247,21 +260,21 @@ def measure(args) -> dict:
             gen = generate(seq, h, w, args.frames)
             print(f"{name}: simulated {args.frames} frames in {gen:.1f} s", flush=True)
             floor = raw_floor(seq)
-            cli = run_cli(seq, tmp / "out.h5")
-            print(f"{name}: floor {fps(floor['frames'], floor['wall'])} fps, irdetect process "
-                  f"{fps(args.frames, cli['wall'])} fps (in-run {fps(args.frames, cli['run'])})",
-                  flush=True)
-            cli_t = None
-            for label, cfg, workers in RUNS:
-                st = run_stages(seq, tmp / "out.h5", None if cfg is None else temporal, workers)
+            cli = {}
+            for label, options in CLI_RUNS:
+                cli[label] = run_cli(seq, tmp / "out.h5", options=options)
+                print(f"{name}: floor {fps(floor['frames'], floor['wall'])} fps, irdetect "
+                      f"process {label}: {fps(args.frames, cli[label]['wall'])} fps (in-run "
+                      f"{fps(args.frames, cli[label]['run'])}, per CPU-s "
+                      f"{fps(args.frames, cli[label]['cpu'])})", flush=True)
+            for label, profile, is_temporal, workers in RUNS:
+                st = run_stages(seq, tmp / "out.h5", temporal if is_temporal else None,
+                                workers, profile)
                 stage_rows.append((name, label, workers, st))
-                if label == "temporal" and workers == 1:
-                    # the temporal path end to end: the same child run, timed after imports
-                    cli_t = {"run": st["wall"], "cpu": st["cpu"], "rss_mb": st["rss_mb"]}
                 print(f"{name} {label} workers={workers}: {fps(args.frames, st['wall'])} "
                       f"fps", flush=True)
-            rows.append((name, floor, cli, cli_t))
-            peer_rows.append((name, trackpy_rate(seq, args.trackpy_frames), cli, cli_t))
+            rows.append((name, floor, cli))
+            peer_rows.append((name, trackpy_rate(seq, args.trackpy_frames), cli))
             seq.unlink()
         long_rows = []
         if args.long:
@@ -269,10 +282,11 @@ def measure(args) -> dict:
                 seq = tmp / f"long_{n}.h5"
                 gen = generate(seq, 256, 256, n, seed=1)
                 r = run_cli(seq, tmp / "out.h5", temporal)
+                r_fast = run_cli(seq, tmp / "out.h5", options=["--profile", "fast"])
                 r_auto = run_cli(seq, tmp / "out.h5") if n == args.frames else None
-                long_rows.append((n, r, r_auto))
-                print(f"long {n}: simulated in {gen:.0f} s, rss {r['rss_mb']:.0f} MB, "
-                      f"{fps(n, r['wall'])} fps", flush=True)
+                long_rows.append((n, r, r_auto, r_fast))
+                print(f"long {n}: simulated in {gen:.0f} s, rss {r['rss_mb']:.0f} MB "
+                      f"(fast {r_fast['rss_mb']:.0f} MB), {fps(n, r['wall'])} fps", flush=True)
                 seq.unlink()
     load1 = os.getloadavg()
     return {"frames": args.frames, "load": [load0[0], load1[0]], "cores": os.cpu_count(),
@@ -286,7 +300,7 @@ def measure(args) -> dict:
 def report(data: dict) -> str:
     """The markdown of docs/results/throughput.md from ``measure``'s results."""
     n = data["frames"]
-    load0, load1 = [data["load"][0]], [data["load"][1]]
+    load0, load1 = data["load"]
     cores = data["cores"]
     rows, stage_rows = data["rows"], data["stage_rows"]
     peer_rows, long_rows = data["peer_rows"], data["long_rows"]
@@ -296,98 +310,114 @@ def report(data: dict) -> str:
         f"Produced by `scripts/bench_throughput.py` on {data['when']}: "
         f"{cores} cores ({data['machine']}), Python {data['versions'][0]}, "
         f"numpy {data['versions'][1]}, OpenCV {data['versions'][2]}.",
-        f"Load average before / after: {load0[0]:.1f} / {load1[0]:.1f} on {cores} "
+        f"Load average before / after: {load0:.1f} / {load1:.1f} on {cores} "
         "cores" + (" -- other sessions were loading the machine while this ran, so wall-clock "
-                   "rates are far below what an idle machine gives; the CPU-time rates "
-                   "(frames per CPU-second of the process) are the steadier figure."
-                   if max(load0[0], load1[0]) > 0.5 * (cores or 1) else "."),
+                   "rates (and what a second thread gives) are below what an idle machine "
+                   "gives; the CPU-time rates (frames per CPU-second of the process) are the "
+                   "steadier figure." if max(load0, load1) > 0.5 * (cores or 1) else "."),
         "",
         f"Inputs: simulated uint16 HDF5 sequences of {n} frames (64-frame chunks, "
         "uncompressed, in the page cache), 5 targets at SNR 4 (noise sigma 20 grey levels "
-        "on 1000). Default configuration unless the row says `temporal`.",
+        "on 1000). `default`: the default configuration (matched-filter verification); "
+        "`fast`: `--profile fast` (no verification; quality in docs/results/profiles.md); "
+        "`temporal`: the default with `suppress.method = \"temporal\"` (the still-camera "
+        "suppressor without `auto`'s motion check). `irdetect process` runs 2 threads "
+        "unless `--threads 1` (`--threads`: the results do not depend on it).",
         "",
         "## End to end: `irdetect process` from HDF5",
         "",
-        "| frames | raw floor fps (read + 12-frame max) | `irdetect process` fps, wall incl. "
-        "start-up | fps in the run (excl. start-up) | ratio to floor (in-run) | fps per "
-        "CPU-second (whole process) | peak RSS MB | `temporal` suppressor (`process_file` in "
-        "a child, after imports): fps / fps per CPU-second / peak RSS MB |",
+        "| frames | run | raw floor fps (read + 12-frame max) | fps, wall incl. start-up | "
+        "fps in the run (excl. start-up) | ratio to floor (in-run) | fps per CPU-second "
+        "(whole process) | peak RSS MB |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    for name, floor, cli, cli_t in rows:
-        ratio = (n / floor["wall"]) / (n / cli["run"]) if cli["run"] > 0 else float("nan")
-        lines.append(f"| {name} | {fps(floor['frames'], floor['wall'])} | {fps(n, cli['wall'])} | "
-                     f"{fps(n, cli['run'])} | {ratio:.1f}x | {fps(n, cli['cpu'])} | "
-                     f"{cli['rss_mb']:.0f} | {fps(n, cli_t['run'])} / {fps(n, cli_t['cpu'])} / "
-                     f"{cli_t['rss_mb']:.0f} |")
+    for name, floor, cli in rows:
+        ffps = fps(floor["frames"], floor["wall"])
+        for label, r in cli.items():
+            ratio = (n / floor["wall"]) / (n / r["run"]) if r["run"] > 0 else float("nan")
+            lines.append(f"| {name} | `{label}` | {ffps} | {fps(n, r['wall'])} | "
+                         f"{fps(n, r['run'])} | {ratio:.1f}x | {fps(n, r['cpu'])} | "
+                         f"{r['rss_mb']:.0f} |")
     lines += [
         "",
         "Start-up (interpreter, imports of numpy / scipy / h5py / OpenCV and the CLI's "
-        "commands) is the difference between the wall and in-run columns.",
+        "commands) is the difference between the wall and in-run columns. The fps per "
+        "CPU-second of a 2-thread run counts both threads' CPU time.",
         "",
         "## Per stage (seconds in the stage, summed over threads; `process_file` in a child "
         "process)",
         "",
         "`combine` includes the PSF-matched, standardised residual frames that the "
         "verification in `correlate` integrates along each chain; `correlate` includes that "
-        "verification.",
+        "verification (not in `fast`). With 2 workers the correlation of each window triple "
+        "runs beside the next windows' front end; a stage's seconds then include waiting "
+        "for the other thread (GIL, memory).",
         "",
-        "| frames | config | workers | " + " | ".join(STAGES) + " | wall s | fps | CPU s |",
-        "|---|---|---|" + "---|" * len(STAGES) + "---|---|---|",
+        "| frames | config | workers | " + " | ".join(STAGES) + " | wall s | fps | CPU s | "
+        "fps per CPU-s |",
+        "|---|---|---|" + "---|" * len(STAGES) + "---|---|---|---|",
     ]
     for name, label, workers, st in stage_rows:
         t = st["timings"]
         lines.append(f"| {name} | {label} | {workers} | "
                      + " | ".join(f"{t.get(s, 0.0):.2f}" for s in STAGES)
-                     + f" | {st['wall']:.2f} | {fps(n, st['wall'])} | {st['cpu']:.2f} |")
+                     + f" | {st['wall']:.2f} | {fps(n, st['wall'])} | {st['cpu']:.2f} | "
+                     f"{fps(n, st['proc_cpu'])} |")
     lines += [
         "",
         "## Against trackpy `locate`",
         "",
         "| frames | trackpy locate fps (diameter 5, one frame at a time) | irdetect process "
-        "fps in-run (default / temporal) | speed-up (default / temporal) |",
+        "fps in-run (default / fast) | speed-up (default / fast) |",
         "|---|---|---|---|",
     ]
-    for name, tp, cli, cli_t in peer_rows:
+    for name, tp, cli in peer_rows:
+        d, f = cli["default"], cli["--profile fast"]
         if tp is None:
             lines.append(f"| {name} | trackpy not installed (`pip install trackpy` in the "
                          "benchmark environment; not a dependency) | | |")
             continue
         tfps = tp["frames"] / tp["wall"]
         lines.append(f"| {name} | {tfps:,.1f} ({tp['frames']} frames, trackpy {tp['version']}) "
-                     f"| {fps(n, cli['run'])} / {fps(n, cli_t['run'])} | "
-                     f"{(n / cli['run']) / tfps:.1f}x / {(n / cli_t['run']) / tfps:.1f}x |")
+                     f"| {fps(n, d['run'])} / {fps(n, f['run'])} | "
+                     f"{(n / d['run']) / tfps:.1f}x / {(n / f['run']) / tfps:.1f}x |")
     if long_rows:
         lines += [
             "",
             "## Streaming memory: peak RSS against sequence length (256x256)",
             "",
             "| frames | `irdetect process` (temporal) peak RSS MB | fps in the run | default "
-            "(auto) peak RSS MB |",
-            "|---|---|---|---|",
+            "peak RSS MB | `--profile fast` peak RSS MB | fast fps in the run |",
+            "|---|---|---|---|---|---|",
         ]
-        for frames, r, r_auto in long_rows:
+        for frames, r, r_auto, r_fast in long_rows:
             auto = "-" if r_auto is None else f"{r_auto['rss_mb']:.0f}"
             lines.append(f"| {frames:,} | {r['rss_mb']:.0f} | {fps(frames, r['run'])} | "
-                         f"{auto} |")
-    lines += ["", "## Where the time goes (default configuration, 1 worker)", ""]
+                         f"{auto} | {r_fast['rss_mb']:.0f} | {fps(frames, r_fast['run'])} |")
+    lines += ["", "## Where the time goes (1 worker)", ""]
     for name, label, workers, st in stage_rows:
-        if label.startswith("default") and workers == 1:
+        if label in ("default (auto)", "fast") and workers == 1:
             t = st["timings"]
             total = sum(t.values()) or 1.0
             top = sorted(t.items(), key=lambda kv: -kv[1])[:3]
-            lines.append(f"- {name}: " + ", ".join(f"{k} {100 * v / total:.0f} %" for k, v in top)
-                         + f" of the {total:.1f} s in stages ({1e3 * total / n:.2f} ms per frame).")
+            lines.append(f"- {name} {label}: " + ", ".join(f"{k} {100 * v / total:.0f} %"
+                                                         for k, v in top)
+                         + f" of the {total:.1f} s in stages ({1e3 * total / n:.2f} ms per "
+                         "frame).")
     lines += ["", "## Goals (issue 9, 2 cores)", ""]
-    for name, floor, cli, cli_t in rows:
+    for name, floor, cli in rows:
         key = next((k for k in GOAL_FPS if f"{k[1]}x{k[0]}" == name), None)
         if key is None:
             continue
-        got = n / cli["run"]
-        lines.append(f"- {name}: goal >= {GOAL_FPS[key]:,} fps end to end; measured "
-                     f"{got:,.0f} fps in-run ({fps(n, cli['wall'])} with start-up, "
-                     f"{fps(n, cli['cpu'])} per CPU-second) -> "
-                     f"{'reached' if got >= GOAL_FPS[key] else 'not reached'}.")
+        for label in ("default", "--profile fast"):
+            r = cli[label]
+            got = n / r["run"]
+            ratio = (n / floor["wall"]) / got
+            lines.append(f"- {name} `{label}`: goal >= {GOAL_FPS[key]:,} fps end to end "
+                         f"within 5x of the floor; measured {got:,.0f} fps in-run "
+                         f"({fps(n, r['wall'])} with start-up, {fps(n, r['cpu'])} per "
+                         f"CPU-second), {ratio:.1f}x the floor -> "
+                         f"{'reached' if got >= GOAL_FPS[key] and ratio <= 5 else 'not reached'}.")
     lines += [
         "",
         "## How the front end streams (what these numbers rest on)",
@@ -398,13 +428,21 @@ def report(data: dict) -> str:
         "(`tests/test_memory.py`). Track initiation runs once over all confirmed detections "
         "at the end, so it is the one part that grows with the number of detections.",
         "- Result rows are buffered and written in blocks (`ResultsWriter.append`).",
-        "- `workers=N` (`iter_results`, `process_file`) runs suppression to fusion of N "
-        "windows at once on threads; the CLI runs 1 (the `workers 2` rows above show what a "
-        "second thread gives on this machine).",
+        "- `--threads N` (`workers=N` of `iter_results` / `process_file`; CLI default 2) "
+        "runs suppression to fusion of the next windows and the correlation (with its "
+        "verification) of each window triple on N threads; the results are taken up in "
+        "order, so every table is the same for any N (`tests/test_memory.py`, "
+        "`tests/test_fast.py`, `scripts/check_identity.py`). Each thread holds its own "
+        "copy of a window's raw frames and its temporaries, so a second thread costs memory "
+        "(see the RSS column).",
         "- Exact rewrites (bit-identical tables): tile medians by one numpy sort instead of "
         "`np.median`'s partition, fusion by flat candidate indices, no finite check on "
         "integer frames, no per-window concatenations, `auto`'s motion check on the 3 "
-        "frames it compares, the fixed-pattern median by a contiguous sort.",
+        "frames it compares, the fixed-pattern median by a contiguous sort; the "
+        "verification's sampling in float32 with fewer temporaries and larger chunks, the "
+        "3 windows' matched frames sampled in place (no stacked copy per triple), the "
+        "residuals turned into the matched frames in place, the detector's winning "
+        "direction by arithmetic instead of masked stores.",
         "",
     ]
     return "\n".join(lines)

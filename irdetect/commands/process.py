@@ -48,8 +48,8 @@ def add_arguments(p):
                    "with --profile, applied on top of the profile")
     p.add_argument("--profile", default="default", metavar="NAME",
                    help=f"named configuration: {', '.join(profile_names())} (default: "
-                   "default; `fast`: no matched-filter verification, about 5x the frames "
-                   "per CPU-second, for a still camera and SNR >= 3; docs/cli.md)")
+                   "default; `fast`: no matched-filter verification, about 3x the frames "
+                   "per CPU-second, for targets of SNR >= 3; docs/cli.md)")
     p.add_argument("--threads", type=int, metavar="N",
                    help=f"single input: threads over windows (default {DEFAULT_THREADS}: the "
                    "correlation of each window triple runs beside the next windows' front "
