@@ -32,7 +32,7 @@ dim-small aircraft target detection and tracking under ground / air background",
 Data Bank, 2019, DOI 10.11922/sciencedb.902.
 
 Usage: .venv/bin/python scripts/bench_real.py [--out docs/results/real.md] [--only NAME]
-       [--config CONFIG.toml] [--no-variants] [--picture NAME:FRAME] [--pair NAME:FRAME]
+       [--config CONFIG.toml] [--no-variants] [--picture NAME:FRAME[:X:Y]] [--pair NAME:FRAME]
 
 Section 3 (variants) reruns irdetect on every sequence with one option changed at a
 time (the previous default, the alternatives measured in docs/real.md), totals only.
@@ -235,9 +235,10 @@ def run_trackpy(frames, truth, gate, target_false, trackpy):
     return best if best is not None else s
 
 
-def picture(name: str, t: int) -> Path:
+def picture(name: str, t: int, centre=None) -> Path:
     """Side by side at 2x: frame t (1-99.8 % stretch) and its residual under the default
-    suppressor; green circle = truth, red = confirmed detections of t's window."""
+    suppressor, 128 x 128 px around the truth (or ``centre`` (x, y)); green circle =
+    truth, red = confirmed detections of t's window."""
     from irdetect.suppress import past_frames, suppress
 
     frames, truth = load(REAL / name)
@@ -261,8 +262,9 @@ def picture(name: str, t: int) -> Path:
             cv2.circle(img, (int(2 * r["x"]), int(2 * r["y"])), 8, (0, 0, 255), 1)
     # a 128 x 128 px crop (256 at 2x) around the target keeps the file small
     h, w = frames.shape[1:]
-    cx = int(np.clip(truth["x"][t] - 64, 0, max(0, w - 128))) * 2
-    cy = int(np.clip(truth["y"][t] - 64, 0, max(0, h - 128))) * 2
+    at = centre if centre is not None else (truth["x"][t], truth["y"][t])
+    cx = int(np.clip(at[0] - 64, 0, max(0, w - 128))) * 2
+    cy = int(np.clip(at[1] - 64, 0, max(0, h - 128))) * 2
     panels = [img[cy:cy + 256, cx:cx + 256] for img in panels]
     out = ROOT / "docs" / "results" / f"real-{name}.png"
     cv2.imwrite(str(out), np.hstack(panels), [cv2.IMWRITE_PNG_COMPRESSION, 9])
@@ -334,9 +336,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=str(ROOT / "docs" / "results" / "real.md"))
     ap.add_argument("--only", action="append", help="run only this sequence (repeatable)")
-    ap.add_argument("--picture", action="append", metavar="NAME:FRAME",
-                    help="write docs/results/real-NAME.png (frame, residual, detections) "
-                    "instead of the benchmark (repeatable)")
+    ap.add_argument("--picture", action="append", metavar="NAME:FRAME[:X:Y]",
+                    help="write docs/results/real-NAME.png (frame, residual, detections; "
+                    "around the truth or X, Y) instead of the benchmark (repeatable)")
     ap.add_argument("--pair", action="append", metavar="NAME:FRAME",
                     help="write docs/results/real-NAME-jump.png (frames FRAME-1 and FRAME) "
                     "instead of the benchmark (repeatable)")
@@ -349,8 +351,9 @@ def main(argv=None) -> int:
         return 1
     if args.picture or args.pair:
         for spec in args.picture or []:
-            name, frame = spec.split(":")
-            print("wrote", picture(name, int(frame)))
+            name, frame, *centre = spec.split(":")
+            print("wrote", picture(name, int(frame),
+                                   tuple(float(c) for c in centre) if centre else None))
         for spec in args.pair or []:
             name, frame = spec.split(":")
             print("wrote", pair_picture(name, int(frame)))
