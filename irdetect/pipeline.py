@@ -64,9 +64,11 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
     progress : bool
         Show a tqdm bar over frames.
     workers : int
-        Threads that run suppression, combination, detection and fusion of several
-        windows at once (>= 1; OpenCV and numpy release the GIL); reading and
-        correlation stay in order on the calling thread. The results do not depend on it.
+        Threads (>= 1; OpenCV and numpy release the GIL) that run suppression,
+        combination, detection and fusion of the next windows and the correlation (with
+        its verification) of each window triple at once; reading, confirming and
+        emitting stay in order on the calling thread, so the results do not depend on
+        it. Each thread holds its own copy of a window's raw frames.
     timings : dict, optional
         When given, seconds spent per stage are added to it under ``read``, ``suppress``,
         ``combine``, ``detect``, ``fuse``, ``correlate`` (summed over threads).

@@ -144,16 +144,21 @@ def suppress(frames, previous=None, *, method: str = "auto", size: int = 9,
             if past.ndim != 3 or past.shape[1:] != stack.shape[1:]:
                 raise ValueError(f"previous must have shape (P, {stack.shape[1]}, "
                                  f"{stack.shape[2]}), got {past.shape}")
-            past = _clean(past[-keep:]) if len(past) else None
+            past = past[-keep:] if len(past) else None
         if method == "auto":
+            # the check converts the 3 frames it compares itself
             method = "registered" if camera_moves(stack, past) else "temporal"
-            if method == "temporal" and past is not None:
-                past = past[-history:]
         if method == "temporal":
+            # integer frames enter the float32 running sum as they are stored (the same
+            # values as converted copies, without converting the past once more)
+            if past is not None:
+                past = past[-history:]
+                past = past if past.dtype.kind in "biu" else _clean(past)
             out = _temporal(stack, int(history), int(size), past)
         else:
-            out = _registered(stack, past, int(history), int(gap), int(tolerance),
-                              bool(fixed_pattern), int(samples), int(size))
+            out = _registered(stack, None if past is None else _clean(past), int(history),
+                              int(gap), int(tolerance), bool(fixed_pattern), int(samples),
+                              int(size))
     elif method == "none":
         out = stack.copy()
     else:
