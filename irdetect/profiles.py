@@ -11,9 +11,10 @@ docs/results/throughput.md and docs/results/profiles.md):
 ``fast``
     The same suppression (``auto``) and ``dp`` merit without the verification: a higher
     first threshold (k 3.5, one robust sigma per frame measured on a 4-px grid) and the
-    earlier score test. About 3 times the default's frames per CPU-second (4 times with
-    ``[suppress] method = "temporal"`` for a camera known to hold still); for targets of
-    SNR 3 and up (at SNR 2 it finds about half the targets the default finds).
+    earlier score test. About twice the default's frames per CPU-second (measured 1.8-2.3
+    times; more with ``[suppress] method = "temporal"`` for a camera known to hold
+    still); for targets of SNR 3 and up (at SNR 2 it finds about half the targets the
+    default finds).
 ``paper``
     The paper's variant (Wan & Askar 2008), for comparison: max projection, the paper's
     grouping, no verification; the chains keep the one-to-one resolution and the score
