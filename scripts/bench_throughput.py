@@ -51,7 +51,8 @@ GOAL_FPS = {(256, 256): 3000, (512, 640): 500}
 #: per-stage runs: (label, profile, temporal config?, workers)
 RUNS = (("default (auto)", "default", False, 1), ("default (auto)", "default", False, 2),
         ("temporal", "default", True, 1), ("temporal", "default", True, 2),
-        ("fast", "fast", False, 1), ("fast", "fast", False, 2))
+        ("fast", "fast", False, 1), ("fast", "fast", False, 2),
+        ("fast, temporal", "fast", True, 1))
 #: ``irdetect process`` runs per size: (label, options); the CLI's default is --threads 2
 CLI_RUNS = (("default", []), ("default --threads 1", ["--threads", "1"]),
             ("--profile fast", ["--profile", "fast"]),
@@ -321,7 +322,8 @@ def report(data: dict) -> str:
         "on 1000). `default`: the default configuration (matched-filter verification); "
         "`fast`: `--profile fast` (no verification; quality in docs/results/profiles.md); "
         "`temporal`: the default with `suppress.method = \"temporal\"` (the still-camera "
-        "suppressor without `auto`'s motion check). `irdetect process` runs 2 threads "
+        "suppressor without `auto`'s motion check); `fast, temporal`: the fast profile "
+        "with it. `irdetect process` runs 2 threads "
         "unless `--threads 1` (`--threads`: the results do not depend on it).",
         "",
         "## End to end: `irdetect process` from HDF5",
