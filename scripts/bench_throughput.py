@@ -420,6 +420,22 @@ def report(data: dict) -> str:
                          f"({fps(n, r['wall'])} with start-up, {fps(n, r['cpu'])} per "
                          f"CPU-second), {ratio:.1f}x the floor -> "
                          f"{'reached' if got >= GOAL_FPS[key] and ratio <= 5 else 'not reached'}.")
+    speedups = [(name, (n / cli[label]["run"]) / (tp["frames"] / tp["wall"]))
+                for name, tp, cli in peer_rows if tp is not None
+                for label in ("default", "--profile fast")]
+    if speedups:
+        worst = min(speedups, key=lambda kv: kv[1])
+        lines.append(f"- >= 20x trackpy `locate` on the same frames: lowest measured "
+                     f"{worst[1]:.1f}x ({worst[0]}) -> "
+                     f"{'reached' if worst[1] >= 20 else 'not reached'}.")
+    peaks = [(f"{name} `{label}`", r["rss_mb"]) for name, _, cli in rows
+             for label, r in cli.items()]
+    peaks += [(f"{frames:,} frames of 256x256", r["rss_mb"]) for frames, r, _, _ in long_rows]
+    if peaks:
+        top = max(peaks, key=lambda kv: kv[1])
+        lines.append(f"- peak memory under 400 MB for any length: highest peak RSS "
+                     f"{top[1]:.0f} MB ({top[0]}) -> {'reached' if top[1] < 400 else 'not reached'}"
+                     "; it does not grow with the sequence length (streaming memory above).")
     lines += [
         "",
         "## How the front end streams (what these numbers rest on)",
