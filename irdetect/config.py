@@ -124,6 +124,7 @@ class InitiateConfig:
     confirm_m: int = 3
     confirm_n: int = 4
     fit_confidence: float = 0.99
+    window: int = 10
 
 
 # --- frame-by-frame tracker (cheng; issue 6) -------------------------------------------

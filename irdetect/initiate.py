@@ -172,7 +172,8 @@ def initiate_detections(detections, *, method: str = DEFAULTS["method"],
                         v_max: float = DEFAULTS["v_max"], min_hits: float = DEFAULTS["min_hits"],
                         confirm_m: int = DEFAULTS["confirm_m"],
                         confirm_n: int = DEFAULTS["confirm_n"],
-                        fit_confidence: float = DEFAULTS["fit_confidence"]) -> np.ndarray:
+                        fit_confidence: float = DEFAULTS["fit_confidence"],
+                        window: int = 10) -> np.ndarray:
     """Initiate tracks from the confirmed detections of an image sequence.
 
     Each detection is one measurement at time (frame_start + frame_end) / 2, in the "scan"
@@ -184,6 +185,12 @@ def initiate_detections(detections, *, method: str = DEFAULTS["method"],
     ----------
     detections : structured ndarray
         ``irdetect.tables.DETECTION`` rows (x = column, y = row).
+    window : int
+        Combined frames per initiation window (Zhang et al.'s M scans; 0 = the whole
+        sequence in one window). Windows overlap by half (``scan_windows`` with step
+        ``window // 2``); a sequence of at most ``window`` combined frames is one window.
+        Tracks of consecutive windows that fit one constant velocity together are one
+        target and are merged (``merge_windows``).
 
     Returns
     -------
@@ -209,8 +216,22 @@ def initiate_detections(detections, *, method: str = DEFAULTS["method"],
     for name in ("x", "y", "frame_start", "frame_end", "combined_frame"):
         if det.dtype.names is None or name not in det.dtype.names:
             raise ValueError(f"detections lack the field {name!r}")
+    if int(window) != window or window < 0 or window == 1:
+        raise ValueError(f"window must be 0 or an integer >= 2, got {window!r}")
     t = 0.5 * (det["frame_start"] + det["frame_end"]).astype(float)
-    rows, members = initiate_points(det["x"], det["y"], t, det["combined_frame"], **params)
+    scan = det["combined_frame"]
+    spans = (scan_windows(scan, window=int(window), step=max(1, int(window) // 2))
+             if window else [])
+    if len(spans) <= 1:
+        rows, members = initiate_points(det["x"], det["y"], t, scan, **params)
+    else:
+        found = []
+        for a, b in spans:
+            sel = np.flatnonzero((scan >= a) & (scan <= b))
+            r, m = initiate_points(det["x"][sel], det["y"][sel], t[sel], scan[sel], **params)
+            found += [(row, sel[mm]) for row, mm in zip(r, m)]
+        rows, members = merge_windows(found, det["x"], det["y"], t, scan,
+                                      sigma=sigma, fit_confidence=fit_confidence)
     out = tables.from_columns(tables.TRACK, n=len(rows))
     if not len(rows):
         return out
@@ -224,6 +245,68 @@ def initiate_detections(detections, *, method: str = DEFAULTS["method"],
     out["x0"] = rows["x0"] + rows["vx"] * shift
     out["y0"] = rows["y0"] + rows["vy"] * shift
     return out
+
+
+def merge_windows(found, x, y, t, scan, *, sigma: float, fit_confidence: float):
+    """One track per target from the tracks of overlapping initiation windows.
+
+    Parameters
+    ----------
+    found : list of (row, members)
+        Tracks of every window in window order: an ``initiate_points`` row and the
+        indices of its measurements into ``x``, ``y``, ``t``, ``scan`` (arrays of shape
+        (N,); x = column, y = row in px, t in frames).
+    sigma, fit_confidence : float
+        Measurement position error (px) and the chi-square confidence of the
+        constant-velocity fit (``initiate_points``).
+
+    Returns
+    -------
+    rows, members
+        As ``initiate_points``, ordered by start time. Each track joins the first earlier
+        track whose combined frames it overlaps or follows directly when the
+        measurements of both fit one constant velocity (chi-square of the least-squares
+        fit, 2n - 4 degrees of freedom, within ``fit_confidence``): two targets that cross
+        fail the fit; a target whose track one window missed is still one track. Where
+        both hold a measurement of a combined frame, the earlier track's is kept. A
+        merged track is
+        the fit of the union with the group's best score; a track merged with none is
+        returned as it was.
+    """
+    from scipy.special import chdtri
+
+    groups: list[list] = []                 # [first row, members, best score, merged]
+    for row, m in found:                        # a loop over tracks (a handful)
+        for g in groups:
+            if scan[m].min() > scan[g[1]].max() + 1:     # neither overlap nor adjacent
+                continue
+            both = np.union1d(g[1], m)
+            *_, rms = fit_constant_velocity(x[both], y[both], t[both])
+            chi2 = len(both) * rms ** 2 / sigma ** 2
+            limit = chdtri(max(2 * len(both) - 4, 1), 1 - fit_confidence)
+            if fit_confidence >= 1 or chi2 <= limit:
+                # where both tracks hold a measurement of a combined frame, the earlier
+                # track's stays (two detections of one frame on the line: a crossing)
+                g[1] = np.union1d(g[1], m[~np.isin(scan[m], scan[g[1]])])
+                g[2] = max(g[2], float(row["score"]))
+                g[3] = True
+                break
+        else:
+            groups.append([row, m, float(row["score"]), False])
+    rows = np.zeros(len(groups), _ROW)
+    for i, (row, m, score, merged) in enumerate(groups):
+        if not merged:
+            rows[i] = row
+            continue
+        x0, y0, vx, vy, _ = fit_constant_velocity(x[m], y[m], t[m])
+        t0, t1 = t[m].min(), t[m].max()
+        theta = (math.atan2(vy, vx) + math.pi / 2) % math.pi if (vx or vy) else row["theta"]
+        tm = 0.5 * (t0 + t1)
+        rho = (x0 + vx * (tm - t0)) * math.cos(theta) + (y0 + vy * (tm - t0)) * math.sin(theta)
+        rows[i] = (rho, theta, vx, vy, t0, t1, scan[m].min(), scan[m].max(), len(m), score,
+                   x0, y0)
+    order = np.argsort(rows["t_start"], kind="stable")
+    return rows[order], [groups[i][1] for i in order]
 
 
 def scan_windows(scan_numbers, *, window: int, step: int | None = None):
@@ -692,9 +775,10 @@ def _cv_batch(win: _Window, ptr, mem, cells, theta, K, p, max_tracks: int = 4):
         if p["fit_confidence"] < 1:
             # chi-square of the fit in the measurements' own error terms, 2n - 4 dof
             chi2 = np.where(members, _fit_error(x, y, t, members, axes) ** 2, 0.0).sum(axis=1)
-            from scipy.stats import chi2 as chi2_dist  # lazy: scipy.stats costs ~1 s to import
+            # the chi-square quantile by scipy.special (scipy.stats costs ~1 s to import)
+            from scipy.special import chdtri
 
-            limit = chi2_dist.ppf(p["fit_confidence"], np.maximum(2 * n_m - 4, 1))
+            limit = chdtri(np.maximum(2 * n_m - 4, 1), 1 - p["fit_confidence"])
             good &= (n_m < 3) | (chi2 <= limit)
         for b in np.flatnonzero(good):                 # accepted tracks (a handful)
             src.append(int(cells[b]))

@@ -162,3 +162,29 @@ def test_liang2015_preset_initiates_every_target_with_few_false_tracks():
         found += sc["initiated"].sum()
         false += sc["n_false"].sum()
     assert found == 15 and false <= 1
+
+
+def test_a_long_sequence_gives_one_track_per_target_in_sliding_windows():
+    # 60 combined frames; each target is in view for 20 of them (a small frame, a long
+    # recording). One window over everything would ask every track for 0.6 x 60 votes.
+    rng = np.random.default_rng(0)
+    x, y, k = [], [], []
+    targets = [(0, 20.0, 30.0, 12.0, 4.0), (20, 200.0, 40.0, -12.0, 6.0),
+               (40, 30.0, 60.0, 10.0, 8.0), (40, 30.0, 220.0, 10.0, -8.0)]   # last two cross
+    for first, x0, y0, vx, vy in targets:
+        s = np.arange(first, first + 20)
+        x += list(x0 + vx * (s - first) + rng.normal(0, 0.5, 20))
+        y += list(y0 + vy * (s - first) + rng.normal(0, 0.5, 20))
+        k += list(s)
+    det = _det(np.array(x), np.array(y), np.array(k))
+    assert len(initiate_detections(det, window=0)) == 0
+    tracks = initiate_detections(det)                       # window 10, step 5
+    assert len(tracks) == 4
+    for (first, x0, y0, vx, vy), tr in zip(targets, tracks[np.lexsort((tracks["y0"],
+                                                                      tracks["frame_start"]))]):
+        assert tr["frame_start"] == 12 * first and tr["frame_end"] == 12 * (first + 19) + 11
+        assert tr["n_points"] == 20
+        assert (tr["vx"], tr["vy"]) == (pytest.approx(vx / 12, abs=0.01),
+                                        pytest.approx(vy / 12, abs=0.01))
+    with pytest.raises(ValueError, match="window"):
+        initiate_detections(det, window=1)

@@ -28,7 +28,8 @@ def add_arguments(p):
     p.add_argument("--method", choices=METHODS, help="initiation method (default: hough-sc "
                    "or the scenario preset's)")
     p.add_argument("--window", type=int, default=None,
-                   help="sliding window length M in scans (default: all scans, at most 10)")
+                   help="sliding window length M in scans (default: the config's "
+                   "initiate.window, 10; all scans when there are fewer)")
     p.add_argument("--step", type=int, default=None, help="scans between windows (default M)")
     p.add_argument("--config", help="TOML file with an [initiate] table")
     p.add_argument("--merge-peaks", action="store_true",
@@ -66,7 +67,9 @@ def run(args) -> int:
     scans, truth, attrs = read_scans(args.input)
     params = _params(args, attrs)
     n_scans = len(set(scans["scan"].tolist()))
-    window = args.window or max(2, min(10, n_scans))
+    window = params.pop("window")       # the config's M (0 = all scans)
+    window = args.window if args.window is not None else max(2, min(window or n_scans,
+                                                                     n_scans))
     if window < 2:
         raise InputError(f"--window must be >= 2, got {window}")
     if args.step is not None and args.step < 1:
