@@ -271,13 +271,15 @@ def _lap(timings: dict | None, name: str, t0: float) -> float:
 
 
 def detect_sequence(frames, config: ProcessConfig | None = None, *,
-                    progress: bool = False) -> dict[str, np.ndarray]:
+                    progress: bool = False, workers: int = 1) -> dict[str, np.ndarray]:
     """Run the front end over an in-memory sequence and collect the tables.
 
     Parameters
     ----------
     frames : ndarray of shape (T, H, W) or irdetect.io.FrameSource
     config : ProcessConfig, optional
+    workers : int
+        Threads over windows (``iter_results``); the results do not depend on it.
 
     Returns
     -------
@@ -295,7 +297,7 @@ def detect_sequence(frames, config: ProcessConfig | None = None, *,
     """
     config = config or ProcessConfig()
     parts: dict[str, list] = {"candidates": [], "detections": [], "segments": []}
-    for chunk in iter_results(frames, config, progress=progress):
+    for chunk in iter_results(frames, config, progress=progress, workers=workers):
         for name, rows in chunk.items():
             parts[name].append(rows)
     out = {name: (np.concatenate(rows) if rows else tables.empty(name))

@@ -50,17 +50,9 @@ def cases(quick: bool = False):
 
 
 def run(frames, config, workers: int) -> dict:
-    from irdetect import tables
-    from irdetect.pipeline import initiate_tracks, iter_results
+    from irdetect.pipeline import detect_sequence
 
-    parts = {name: [] for name in TABLES[:3]}
-    for chunk in iter_results(frames, config, workers=workers):
-        for name, rows in chunk.items():
-            parts[name].append(rows)
-    out = {name: (np.concatenate(rows) if rows else tables.empty(name))
-           for name, rows in parts.items()}
-    out["tracks"] = initiate_tracks(out["detections"], config)
-    return out
+    return detect_sequence(frames, config, workers=workers)
 
 
 def main(argv=None) -> int:
