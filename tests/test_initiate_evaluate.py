@@ -40,3 +40,25 @@ def test_evaluate_scores_the_scan_tracks_of_initiate(tmp_path, capsys):
     # the same with the truth named explicitly
     again = _json(capsys, ["evaluate", str(out), "--truth", str(scans), "--json"])
     assert again["track initiation (scans)"] == scores
+
+
+def test_path_rule_holds_a_wiggling_target_and_rejects_a_track_out_of_time():
+    from irdetect import tables
+    from irdetect.metrics.initiation import score_image_tracks, score_track_paths
+
+    f = np.arange(100)
+    truth = tables.from_columns(tables.TRUTH, frame=f, target=np.zeros(100, int),
+                                x=50 + 0.5 * f, y=80 + 0.2 * f + 6 * np.sin(f / 5))
+    on = dict(frame_start=0, frame_end=99, vx=0.5, vy=0.2, x0=50.0, y0=80.0)
+    late = dict(on, x0=30.0, y0=72.0)                        # its line, 40 frames behind
+    tracks = tables.from_columns(tables.TRACK, n=3)
+    for i, tr in enumerate((on, late, on)):                 # the third duplicates the first
+        for name, value in tr.items():
+            tracks[name][i] = value
+    theta = np.arctan2(0.2, 0.5) + np.pi / 2
+    tracks["theta"], tracks["rho"] = theta, 50 * np.cos(theta) + 80 * np.sin(theta)
+    path = score_track_paths(tracks, truth, gate=6.0)
+    assert path["pt_overall"] == 1.0 and path["n_false"] == 2      # the late one, the copy
+    assert score_track_paths(tracks[1:2], truth, gate=6.0)["pt_overall"] == 0.0
+    line = score_image_tracks(tracks, truth, sigma=1.5)       # the line rule: a 5.6 px
+    assert line["pt_overall"] == 0.0                          # wiggle is beyond 3 x 1.5 px

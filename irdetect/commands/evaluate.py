@@ -10,6 +10,8 @@ Each section scores one table when the results file holds it:
                            pixel-level Fa (IRSTD convention, 3x3 px per detection)
   track initiation /tracks   Pt per target and overall, Pc, velocity error (lines within
                            3 sigma of every true position, one-to-one; docs/initiation.md);
+                           pt_path, n_false_path: the track's position in each of its
+                           frames within 2 x --gate of the target in half of them
                            /scan_tracks of irdetect initiate: the same per window, OSPA, GOSPA
 
 Other sections (initiated tracks, frame-by-frame tracks) register in ``SECTIONS``.
@@ -64,7 +66,7 @@ def _initiation_section(results, truth, ctx) -> dict:
 
     if "track_points" in results:
         return {"skipped": "tracks of irdetect track: see tracking (CLEAR-MOT)"}
-    return evaluate_image_tracks(results, truth)
+    return evaluate_image_tracks(results, truth, gate=ctx["gate"])
 
 
 SECTIONS: list[tuple[str, str, callable]] = [
