@@ -40,6 +40,7 @@ class SuppressConfig:
     tolerance: int = 1
     fixed_pattern: bool = True
     samples: int = 3
+    lead_in: str = "future"
 
 
 @dataclass(frozen=True)
