@@ -103,7 +103,7 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
     # the first window(s) look ahead: their first frames have no past (``lead_in``)
     ahead = [future_frames(start=int(s), stop=int(s) + cc.length, **params.suppress)
              for s in starts]
-    reader = _Reader(frames, past_frames(**params.suppress), cc.length + max(ahead))
+    reader = _Reader(frames, past_frames(**params.suppress), cc.length, max(ahead))
     pool = ThreadPoolExecutor(int(workers)) if workers > 1 else None
     fronts: deque = deque()      # windows read and submitted, in order
     pending: deque = deque()
@@ -488,7 +488,7 @@ class _Reader:
     #: largest read-ahead in bytes (a 64-frame chunk of 640x512 uint16 frames is 42 MB)
     MAX_BLOCK_BYTES = 48 << 20
 
-    def __init__(self, frames, history: int, length: int):
+    def __init__(self, frames, history: int, length: int, ahead: int = 0):
         self.frames = frames
         self.history = history
         n, h, w = (int(v) for v in frames.shape)
@@ -496,7 +496,9 @@ class _Reader:
         frame_bytes = h * w * np.dtype(frames.dtype).itemsize
         chunk = max(1, int(getattr(frames, "block_frames", 1)))
         self.block = max(length, min(chunk, max(1, self.MAX_BLOCK_BYTES // frame_bytes)))
-        self.buf = np.empty((min(n, history + length + self.block), h, w), frames.dtype)
+        # the first window may also read ``ahead`` frames after it (it has no history)
+        size = max(history + length + self.block, length + ahead)
+        self.buf = np.empty((min(n, size), h, w), frames.dtype)
         self.lo = self.hi = 0     # the buffer holds raw frames [lo, hi)
 
     def read(self, a: int, b: int):
