@@ -121,8 +121,9 @@ def suppress(frames, previous=None, following=None, *, method: str = "auto", siz
     of a sequence, with no past that old, take frames t+l instead (``lead_in="future"``:
     the same background, looking ahead) or the ``size`` top-hat (``"tophat"``, whose
     clutter is wider than a target but not always: a target on the edge of a bright
-    structure wider than ``size`` keeps a plateau around it, daub-data13-a frame 6). Translation only (no
-    rotation or parallax; the dilation absorbs up to ``tolerance`` px of either).
+    structure wider than ``size`` keeps a plateau around it, daub-data13-a frame 6).
+    Translation only (no rotation or parallax; the dilation absorbs up to ``tolerance``
+    px of either).
     Fixed pattern: P = median over the frames (``previous`` and ``frames``) of
     F - medianBlur3(F), subtracted from every frame; a target sits on the same pixel
     in well under half of them (DAUB: at most 46 % of 24 frames) and is not in P.
@@ -215,8 +216,9 @@ def future_frames(method: str, start: int, stop: int, *, history: int = 12, gap:
     if lead_in != "future" or method not in ("temporal", "registered", "auto"):
         return 0
     # frames before `lead` have no past: temporal's first frame, registered's first `gap`
-    lead, reach = (1, int(history)) if method == "temporal" else (int(gap),
-                                                                 int(gap) + int(history) - 1)
+    lead, reach = int(gap), int(gap) + int(history) - 1
+    if method == "temporal":
+        lead, reach = 1, int(history)
     if method == "auto":
         reach = max(reach, int(history))
     if start >= lead or stop <= start:
@@ -410,7 +412,9 @@ def _temporal(stack: np.ndarray, history: int, size: int, past: np.ndarray | Non
     def full(i):        # frame i of past + stack + future (no concatenated copy)
         if i < n_past:
             return past[i]
-        return stack[i - n_past] if i < n_past + len(stack) else future[i - n_past - len(stack)]
+        if i < n_past + len(stack):
+            return stack[i - n_past]
+        return future[i - n_past - len(stack)]
 
     out = np.empty_like(stack)
     # running sum of the previous `history` frames: one add and one subtract per frame
