@@ -40,6 +40,7 @@ class SuppressConfig:
     tolerance: int = 1
     fixed_pattern: bool = True
     samples: int = 3
+    lead_in: str = "future"
 
 
 @dataclass(frozen=True)
@@ -81,14 +82,14 @@ class FuseConfig:
 class CorrelateConfig:
     """Bidirectional 3-frame correlation (``irdetect.correlate.correlate``)."""
 
-    max_speed: float = 1.5
+    max_speed: float = 2.0
     tolerance: float = 5.0
     constant_velocity: bool = True
-    max_deviation: float = 14.0
+    max_deviation: float = 20.0
     resolve: str = "cost"
     min_score: float = 3.5
     verify: float = 6.5
-    verify_local: float = 4.0
+    verify_local: float = 3.5
 
 
 # --- track initiation (zhang2010, liang2015; issues 4, 5) -----------------------------

@@ -411,10 +411,10 @@ def _sample_sum(frames, offs, dts, cc, vv, h, w, bilinear):
 
 
 def correlate(points1, points2, points3, step: int, evidence: Evidence | None = None, *,
-              max_speed: float = 1.5, tolerance: float = 5.0,
-              constant_velocity: bool = True, max_deviation: float = 14.0,
+              max_speed: float = 2.0, tolerance: float = 5.0,
+              constant_velocity: bool = True, max_deviation: float = 20.0,
               resolve: str = "cost", min_score: float = 3.5,
-              verify: float = 6.5, verify_local: float = 4.0) -> Correlation:
+              verify: float = 6.5, verify_local: float = 3.5) -> Correlation:
     """Find 3-point segments through the fused points of 3 consecutive combined frames.
 
     Parameters

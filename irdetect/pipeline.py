@@ -35,7 +35,7 @@ from irdetect.correlate import (DP_LEADS, Evidence, correlate, matched_frame, no
 from irdetect.detect import detect
 from irdetect.errors import InputError
 from irdetect.fuse import fuse
-from irdetect.suppress import past_frames, suppress
+from irdetect.suppress import future_frames, past_frames, suppress
 
 log = logging.getLogger(__name__)
 
@@ -100,7 +100,10 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     starts = window_starts(n_frames, length=cc.length, step=cc.step)
     params = _StageParams(config)
-    reader = _Reader(frames, past_frames(**params.suppress), cc.length)
+    # the first window(s) look ahead: their first frames have no past (``lead_in``)
+    ahead = [future_frames(start=int(s), stop=int(s) + cc.length, **params.suppress)
+             for s in starts]
+    reader = _Reader(frames, past_frames(**params.suppress), cc.length, max(ahead))
     pool = ThreadPoolExecutor(int(workers)) if workers > 1 else None
     fronts: deque = deque()      # windows read and submitted, in order
     pending: deque = deque()
@@ -109,16 +112,19 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
 
     def submit(k: int):
         t0 = time.perf_counter()
-        block, previous = reader.read(int(starts[k]), int(starts[k]) + cc.length)
+        block, previous = reader.read(int(starts[k]), int(starts[k]) + cc.length + ahead[k])
+        block, following = block[:cc.length], block[cc.length:]
         previous = previous if len(previous) else None
+        following = following if len(following) else None
         if pool is None:
             _lap(timings, "read", t0)
-            return _Ready(_front(block, previous, params, timings))
+            return _Ready(_front(block, previous, params, timings, following))
         # the reader's buffer is reused: the thread gets its own copy
         block = block.copy()
         previous = None if previous is None else previous.copy()
+        following = None if following is None else following.copy()
         _lap(timings, "read", t0)
-        return pool.submit(_front, block, previous, params, timings)
+        return pool.submit(_front, block, previous, params, timings, following)
 
     corrs: deque = deque()       # correlations of window triples submitted, in order
     first = 0                    # the oldest pending window
@@ -196,13 +202,14 @@ class _StageParams:
         self.psf = config.combine.dp_smooth
 
 
-def _front(block, previous, params: _StageParams, timings: dict | None):
-    """One window's suppression, combination, detection and fusion.
+def _front(block, previous, params: _StageParams, timings: dict | None, following=None):
+    """One window's suppression, combination, detection and fusion (``following``: the
+    raw frames after the window that the first frames' background looks ahead to).
 
     Returns (candidates, candidate pixels, matched residual frames (L, H, W) or None).
     """
     t = time.perf_counter()
-    residual = suppress(block, previous=previous, **params.suppress)
+    residual = suppress(block, previous=previous, following=following, **params.suppress)
     t = _lap(timings, "suppress", t)
     if params.matched and params.combine["projection"] == "dp" and params.psf > 0:
         # the dp merit and the matched filter smooth with the same Gaussian: smooth each
@@ -483,7 +490,7 @@ class _Reader:
     #: largest read-ahead in bytes (a 64-frame chunk of 640x512 uint16 frames is 42 MB)
     MAX_BLOCK_BYTES = 48 << 20
 
-    def __init__(self, frames, history: int, length: int):
+    def __init__(self, frames, history: int, length: int, ahead: int = 0):
         self.frames = frames
         self.history = history
         n, h, w = (int(v) for v in frames.shape)
@@ -491,7 +498,9 @@ class _Reader:
         frame_bytes = h * w * np.dtype(frames.dtype).itemsize
         chunk = max(1, int(getattr(frames, "block_frames", 1)))
         self.block = max(length, min(chunk, max(1, self.MAX_BLOCK_BYTES // frame_bytes)))
-        self.buf = np.empty((min(n, history + length + self.block), h, w), frames.dtype)
+        # the first window may also read ``ahead`` frames after it (it has no history)
+        size = max(history + length + self.block, length + ahead)
+        self.buf = np.empty((min(n, size), h, w), frames.dtype)
         self.lo = self.hi = 0     # the buffer holds raw frames [lo, hi)
 
     def read(self, a: int, b: int):

@@ -14,8 +14,9 @@ four suppressors and picks the default by measurement (``scripts/bench_detection
     edge in any direction is predicted and removed.
 ``temporal``
     Causal temporal background: the mean of the previous ``history`` frames at the same
-    pixel (the first frame of a sequence, with no past, uses a ``size`` x ``size`` box
-    mean). Removes still clutter of any shape, and also still targets.
+    pixel (the first frame of a sequence, with no past, uses the next ``history`` frames,
+    or a ``size`` x ``size`` box mean with ``lead_in="tophat"``). Removes still clutter
+    of any shape, and also still targets.
 ``registered``
     Motion-compensated temporal background for a moving camera (beyond the paper): the
     global shift between consecutive frames is measured by phase correlation, the past
@@ -26,7 +27,10 @@ four suppressors and picks the default by measurement (``scripts/bench_detection
     image while the scene moves) is estimated as the temporal median of each frame's
     3x3 high-pass over the available frames and removed. Keeps a target that moves
     relative to the scene by more than about ``tolerance + 2`` px over ``gap`` frames,
-    even when the camera holds it still in the image.
+    even when the camera holds it still in the image. The first ``gap`` frames of a
+    sequence have no past that old: their background is built the same way from the
+    frames at the mirrored lags after them (``lead_in="future"``; a streaming caller
+    passes them as ``following``) or is a ``size`` top-hat (``lead_in="tophat"``).
 ``auto``
     ``temporal`` while the camera holds still, ``registered`` when it moves: per call
     (one window when streaming), the shift of the last frame against the oldest and the
@@ -43,14 +47,16 @@ import numpy as np
 import cv2
 
 METHODS = ("tophat", "maxmean", "maxmedian", "temporal", "registered", "auto", "none")
+LEAD_INS = ("future", "tophat")
 
 #: 1.4826 * MAD is the standard deviation of a Gaussian.
 MAD_TO_SIGMA = 1.4826
 
 
-def suppress(frames, previous=None, *, method: str = "auto", size: int = 9,
+def suppress(frames, previous=None, following=None, *, method: str = "auto", size: int = 9,
              guard: int = 1, history: int = 12, gap: int = 8, tolerance: int = 1,
-             fixed_pattern: bool = True, samples: int = 3) -> np.ndarray:
+             fixed_pattern: bool = True, samples: int = 3,
+             lead_in: str = "future") -> np.ndarray:
     """Suppress the background of one frame or a stack of frames.
 
     Parameters
@@ -61,6 +67,10 @@ def suppress(frames, previous=None, *, method: str = "auto", size: int = 9,
     previous : ndarray of shape (P, H, W), optional
         ``temporal`` / ``registered``: raw frames just before ``frames[0]`` (the tail of
         the previous block when streaming); only the last ``past_frames(...)`` are used.
+    following : ndarray of shape (N, H, W), optional
+        ``temporal`` / ``registered`` with ``lead_in="future"``: raw frames just after
+        ``frames[-1]``, read only for the first frames of a sequence (the block needs
+        ``future_frames(...)`` of them); they are not suppressed themselves.
     method : {"tophat", "maxmean", "maxmedian", "temporal", "registered", "auto", "none"}
         The suppressor (see the module docstring).
     size : int
@@ -85,6 +95,11 @@ def suppress(frames, previous=None, *, method: str = "auto", size: int = 9,
         ``registered``: number of past frames, evenly spread over the lags
         [gap, gap + history), averaged into the background (>= 1); each costs one
         phase correlation per frame.
+    lead_in : {"future", "tophat"}
+        ``temporal`` / ``registered``: the background of the frames with no past (the
+        first frame, respectively the first ``gap`` frames, of a sequence): built the
+        same way from the frames after them at the mirrored lags (``"future"``, those
+        in ``frames`` + ``following``), or a ``size`` top-hat / box mean (``"tophat"``).
 
     Returns
     -------
@@ -101,10 +116,14 @@ def suppress(frames, previous=None, *, method: str = "auto", size: int = 9,
     ``registered`` (for a moving camera, measured on the DAUB sequences, docs/real.md):
     background B_t = dilate(mean_l warp(F_{t-l}, d_{t-l,t})) over ``samples`` lags l
     evenly spread in [gap, gap + history) that exist, d the shift of frame t against
-    frame t-l by ``cv2.phaseCorrelate`` (Hanning window) measured directly for each pair
-    (the first ``gap`` frames of a sequence, with no past that old, use the ``size``
-    top-hat instead); pixels that no shifted past frame covers give residual 0. Translation only (no
-    rotation or parallax; the dilation absorbs up to ``tolerance`` px of either).
+    frame t-l by ``cv2.phaseCorrelate`` (Hanning window) measured directly for each pair;
+    pixels that no shifted past frame covers give residual 0. The first ``gap`` frames
+    of a sequence, with no past that old, take frames t+l instead (``lead_in="future"``:
+    the same background, looking ahead) or the ``size`` top-hat (``"tophat"``, whose
+    clutter is wider than a target but not always: a target on the edge of a bright
+    structure wider than ``size`` keeps a plateau around it, daub-data13-a frame 6).
+    Translation only (no rotation or parallax; the dilation absorbs up to ``tolerance``
+    px of either).
     Fixed pattern: P = median over the frames (``previous`` and ``frames``) of
     F - medianBlur3(F), subtracted from every frame; a target sits on the same pixel
     in well under half of them (DAUB: at most 46 % of 24 frames) and is not in P.
@@ -131,6 +150,8 @@ def suppress(frames, previous=None, *, method: str = "auto", size: int = 9,
         raise ValueError(f"tolerance must be an integer >= 0, got {tolerance!r}")
     if int(samples) != samples or samples < 1:
         raise ValueError(f"samples must be an integer >= 1, got {samples!r}")
+    if lead_in not in LEAD_INS:
+        raise ValueError(f"lead_in must be one of {LEAD_INS}, got {lead_in!r}")
     arr = np.asarray(frames)
     if arr.ndim not in (2, 3) or arr.shape[-1] == 0 or arr.shape[-2] == 0:
         raise ValueError(f"frames must have shape (H, W) or (T, H, W), got {arr.shape}")
@@ -145,6 +166,13 @@ def suppress(frames, previous=None, *, method: str = "auto", size: int = 9,
                 raise ValueError(f"previous must have shape (P, {stack.shape[1]}, "
                                  f"{stack.shape[2]}), got {past.shape}")
             past = past[-keep:] if len(past) else None
+        future = None
+        if following is not None and lead_in == "future":
+            future = np.asarray(following)
+            if future.ndim != 3 or future.shape[1:] != stack.shape[1:]:
+                raise ValueError(f"following must have shape (N, {stack.shape[1]}, "
+                                 f"{stack.shape[2]}), got {future.shape}")
+            future = _clean(future) if len(future) else None
         if method == "auto":
             # the check converts the 3 frames it compares itself
             method = "registered" if camera_moves(stack, past) else "temporal"
@@ -154,11 +182,12 @@ def suppress(frames, previous=None, *, method: str = "auto", size: int = 9,
             if past is not None:
                 past = past[-history:]
                 past = past if past.dtype.kind in "biu" else _clean(past)
-            out = _temporal(stack, int(history), int(size), past)
+            out = _temporal(stack, int(history), int(size), past, future,
+                            lead_in == "future")
         else:
             out = _registered(stack, None if past is None else _clean(past), int(history),
                               int(gap), int(tolerance), bool(fixed_pattern), int(samples),
-                              int(size))
+                              int(size), future, lead_in == "future")
     elif method == "none":
         out = stack.copy()
     else:
@@ -178,6 +207,23 @@ def past_frames(method: str, *, history: int = 12, gap: int = 8, **_) -> int:
     if method == "auto":
         return max(int(history), int(gap) + int(history) - 1)
     return 0
+
+
+def future_frames(method: str, start: int, stop: int, *, history: int = 12, gap: int = 8,
+                  lead_in: str = "future", **_) -> int:
+    """Raw frames after a block of sequence frames [start, stop) that ``suppress`` uses
+    (``following``): the look-ahead of the first frames of a sequence, 0 for the rest."""
+    if lead_in != "future" or method not in ("temporal", "registered", "auto"):
+        return 0
+    # frames before `lead` have no past: temporal's first frame, registered's first `gap`
+    lead, reach = int(gap), int(gap) + int(history) - 1
+    if method == "temporal":
+        lead, reach = 1, int(history)
+    if method == "auto":
+        reach = max(reach, int(history))
+    if start >= lead or stop <= start:
+        return 0
+    return max(0, min(stop, lead) - 1 + reach + 1 - stop)
 
 
 #: ``auto``: a shift of this many px or more within the frames held means a moving camera
@@ -358,11 +404,17 @@ def _maxmedian(frame: np.ndarray, size: int, guard: int) -> np.ndarray:
     return frame - bg
 
 
-def _temporal(stack: np.ndarray, history: int, size: int, past: np.ndarray | None):
+def _temporal(stack: np.ndarray, history: int, size: int, past: np.ndarray | None,
+              future: np.ndarray | None = None, ahead: bool = False):
     n_past = 0 if past is None else len(past)
+    n_all = n_past + len(stack) + (0 if future is None else len(future))
 
-    def full(i):        # frame i of past + stack (no concatenated copy)
-        return past[i] if i < n_past else stack[i - n_past]
+    def full(i):        # frame i of past + stack + future (no concatenated copy)
+        if i < n_past:
+            return past[i]
+        if i < n_past + len(stack):
+            return stack[i - n_past]
+        return future[i - n_past - len(stack)]
 
     out = np.empty_like(stack)
     # running sum of the previous `history` frames: one add and one subtract per frame
@@ -373,7 +425,12 @@ def _temporal(stack: np.ndarray, history: int, size: int, past: np.ndarray | Non
     for t in range(len(stack)):
         i = n_past + t
         count = i - max(0, i - history)
-        if count == 0:          # only the very first frame of a sequence: no past at all
+        if count == 0 and ahead and i + 1 < n_all:
+            # the very first frame of a sequence has no past: the next frames stand in
+            bg = np.mean([full(j) for j in range(i + 1, min(n_all, i + 1 + history))],
+                         axis=0, dtype=np.float32)
+            np.subtract(stack[t], bg, out=out[t])
+        elif count == 0:        # no past, no future: a box mean stands in
             out[t] = stack[t] - cv2.blur(stack[t], (size, size), borderType=cv2.BORDER_REFLECT)
         else:
             cv2.scaleAdd(total, -1.0 / count, stack[t], dst=out[t])
@@ -431,10 +488,16 @@ class _Registrar:
         return float(d[0]), float(d[1])
 
 
-def registered_lags(i: int, *, history: int, gap: int, samples: int) -> list[int]:
-    """Lags of the past frames in the background of frame ``i`` (frames 0..i-1 exist)."""
+def registered_lags(i: int, *, history: int, gap: int, samples: int,
+                    ahead: int = 0) -> list[int]:
+    """Lags of the past frames in the background of frame ``i`` (frames 0..i-1 exist);
+    with ``ahead`` > 0 and no such past, the negative lags -l of the frames i+l that
+    exist (frames i+1..i+ahead): the same lags, mirrored."""
     span = np.unique(np.round(np.linspace(gap, gap + history - 1, samples)).astype(int))
-    return [int(lag) for lag in span if lag <= i]
+    lags = [int(lag) for lag in span if lag <= i]
+    if not lags and ahead:
+        lags = [-int(lag) for lag in span if lag <= ahead]
+    return lags
 
 
 def _fixed_pattern(full: np.ndarray) -> np.ndarray:
@@ -452,9 +515,11 @@ def _median_axis0(stack: np.ndarray) -> np.ndarray:
     return med.reshape(stack.shape[1:]).astype(np.float32)
 
 
-def _registered(stack, past, history, gap, tolerance, fixed_pattern, samples, size):
+def _registered(stack, past, history, gap, tolerance, fixed_pattern, samples, size,
+                future=None, ahead=False):
     n_past = 0 if past is None else len(past)
-    full = stack if past is None else np.concatenate([past, stack])
+    parts = [a for a in (past, stack, future) if a is not None]
+    full = stack if len(parts) == 1 else np.concatenate(parts)
     if fixed_pattern and len(full) >= 3:
         full = full - _fixed_pattern(full)[None]
     reg = _Registrar(full)
@@ -463,10 +528,11 @@ def _registered(stack, past, history, gap, tolerance, fixed_pattern, samples, si
     kern = np.ones((2 * tolerance + 1, 2 * tolerance + 1), np.uint8) if tolerance else None
     for t in range(len(stack)):
         i = n_past + t
-        lags = registered_lags(i, history=history, gap=gap, samples=samples)
+        lags = registered_lags(i, history=history, gap=gap, samples=samples,
+                               ahead=len(full) - 1 - i if ahead else 0)
         if not lags:
-            # the first `gap` frames of a sequence have no past that old: a spatial
-            # top-hat stands in (its clutter is not confirmed by the later windows)
+            # the first `gap` frames of a sequence have no past that old and (lead_in
+            # "tophat" or too short a sequence) no future: a spatial top-hat stands in
             out[t] = _tophat(full[i], size, 0)
             continue
         total = np.zeros((h, w), np.float32)

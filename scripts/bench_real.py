@@ -64,12 +64,18 @@ TRACKPY_QUANTILES = (0.9, 0.97, 0.975, 0.98, 0.985, 0.99, 0.995, 0.998, 0.999, 0
 MIN_TRACK = 12
 #: section 3: (label, {stage: {field: value}}) applied on top of the configuration run
 VARIANTS = (
-    ("previous default: no local test of verified tracks (correlate.verify_local 0)",
+    ("previous default: top-hat stand-in, local test 4, max_speed 1.5, max_deviation 14",
+     {"suppress": {"lead_in": "tophat"},
+      "correlate": {"verify_local": 4.0, "max_speed": 1.5, "max_deviation": 14.0}}),
+    ("top-hat stand-in for the first frames (suppress.lead_in tophat)",
+     {"suppress": {"lead_in": "tophat"}}),
+    ("local test 4 sigma (correlate.verify_local 4, the previous value)",
+     {"correlate": {"verify_local": 4.0}}),
+    ("slower image motion: correlate.max_speed 1.5, max_deviation 14 (the previous values)",
+     {"correlate": {"max_speed": 1.5, "max_deviation": 14.0}}),
+    ("no local test of verified tracks (correlate.verify_local 0)",
      {"correlate": {"verify_local": 0.0}}),
-    ("faster, jumpier image motion: correlate.max_speed 2, max_deviation 20",
-     {"correlate": {"max_speed": 2.0, "max_deviation": 20.0}}),
     ("local test 4.5 sigma", {"correlate": {"verify_local": 4.5}}),
-    ("local test 3.5 sigma", {"correlate": {"verify_local": 3.5}}),
     ("verify 8 (instead of the local test)", {"correlate": {"verify": 8.0, "verify_local": 0.0}}),
     ("dp_radius 2 (the dp merit follows 2 px/frame)", {"combine": {"dp_radius": 2}}),
 )

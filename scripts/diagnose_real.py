@@ -38,7 +38,7 @@ from irdetect import correlate as corr_mod
 from irdetect.combine import window_starts
 from irdetect.config import ProcessConfig, load_config
 from irdetect.metrics.detection import path_distance
-from irdetect.suppress import noise_sigma, past_frames, suppress
+from irdetect.suppress import future_frames, noise_sigma, past_frames, suppress
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_real import REAL, gate_of, load  # noqa: E402
@@ -77,8 +77,9 @@ def residual_peaks(frames, truth, start, cfg, length):
     truth, in robust noise sigmas (PSF-smoothed as the dp merit sees it)."""
     sup = asdict(cfg.suppress)
     keep = past_frames(**sup)
+    ahead = future_frames(start=start, stop=start + length, **sup)
     res = suppress(frames[start:start + length], previous=frames[max(0, start - keep):start],
-                   **sup)
+                   following=frames[start + length:start + length + ahead], **sup)
     out = []
     for i, r in enumerate(res):
         r = cv2.GaussianBlur(r, (0, 0), 0.6)

@@ -29,7 +29,7 @@ def test_rejects_three_unrelated_points():
 
 def test_rejects_a_bent_chain_unless_paper_mode():
     # within the motion bound each step, but turning 90 degrees: not constant velocity
-    a, b, c3 = _pts(50, 50), _pts(62, 50), _pts(62, 62)
+    a, b, c3 = _pts(50, 50), _pts(70, 50), _pts(70, 70)
     assert len(correlate(a, b, c3, step=12, min_score=0).segments) == 0
     assert len(correlate(a, b, c3, step=12, min_score=0, constant_velocity=False,
                          resolve="all").segments) == 1
