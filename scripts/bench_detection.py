@@ -281,7 +281,7 @@ def main(argv=None) -> int:
     say("## 3. Choices beyond the paper (wan2008, full pipeline, one option changed)")
     say()
     variants = [
-        ("default (dp merit, decay 0.95, k 2.5, peak split 5 px, const. velocity 14 px, "
+        ("default (dp merit, decay 0.95, k 2.5, peak split 5 px, const. velocity 20 px, "
          "tolerance 5 px, min_score 3.5, matched-filter verification 6.5, resolve=cost)", {}),
         ("no verification (the previous default: k 3.5, max_deviation 5, tolerance 2, "
          "min_score 5)", previous),
