@@ -240,13 +240,19 @@ def load_config(path: str | os.PathLike | None, cls=ProcessConfig, overrides: di
 
     ``overrides`` is a nested dict applied on top of the file (command-line options).
     """
-    data: dict = {} if path is None else read_toml(path)
-    for key, value in (overrides or {}).items():
-        if isinstance(value, dict):
-            data.setdefault(key, {}).update(value)
-        else:
-            data[key] = value
+    data = merge_tables({} if path is None else read_toml(path), overrides or {})
     return from_dict(cls, data, path=path)
+
+
+def merge_tables(base: dict, top: dict) -> dict:
+    """``base`` with ``top`` on top: a table (dict) of ``top`` updates the same table of
+    ``base`` key by key, any other value replaces it. ``base`` is updated and returned."""
+    for key, value in top.items():
+        if isinstance(value, dict) and isinstance(base.get(key), dict):
+            base[key] = {**base[key], **value}
+        else:
+            base[key] = value
+    return base
 
 
 def to_json(config) -> str:

@@ -286,15 +286,21 @@ def ring_significance(evidence: Evidence, c: np.ndarray, v: np.ndarray) -> np.nd
     velocity v: (n,) in the units of ``track_significance``."""
     if len(c) == 0:
         return np.zeros(0)
+    a = np.deg2rad(np.arange(0, 360, 45))
+    total, n_f = _parallel_sums(evidence, c, v, RING_PX * np.column_stack([np.cos(a),
+                                                                           np.sin(a)]))
+    return total.max(axis=1) / (evidence.sigma * np.sqrt(n_f))
+
+
+def _parallel_sums(evidence: Evidence, c, v, offsets):
+    """Track sums (n, R) float32 of the tracks c + offsets[r], velocity v (offsets (R, 2)
+    px), bilinear, and the number of frames F they sum over."""
     frames, offs, n_f, h, w = _flat_frames(evidence)
     t = np.asarray(evidence.index, np.float64)
     dts = (t - t.mean()).astype(np.float32)
-    a = np.deg2rad(np.arange(0, 360, 45))
-    ring = RING_PX * np.column_stack([np.cos(a), np.sin(a)])              # (8, 2)
-    cc = c[:, None, :] + ring[None]
-    vv = np.repeat(v[:, None, :], len(ring), axis=1)
-    total = _sample_sum(frames, offs, dts, cc, vv, h, w, bilinear=True)
-    return total.max(axis=1) / (evidence.sigma * np.sqrt(n_f))
+    cc = c[:, None, :] + offsets[None]
+    vv = np.repeat(v[:, None, :], len(offsets), axis=1)
+    return _sample_sum(frames, offs, dts, cc, vv, h, w, bilinear=True), n_f
 
 
 #: the local test of a verified track (``local_significance``): parallel tracks at these
@@ -338,16 +344,11 @@ def local_significance(evidence: Evidence, c: np.ndarray, v: np.ndarray,
     """
     if len(c) == 0:
         return np.zeros(0)
-    frames, offs, n_f, h, w = _flat_frames(evidence)
-    t = np.asarray(evidence.index, np.float64)
-    dts = (t - t.mean()).astype(np.float32)
     a = np.arange(LOCAL_ANGLES) * (2 * np.pi / LOCAL_ANGLES)
     ring = np.concatenate([r * np.column_stack([np.cos(a + i * np.pi / LOCAL_ANGLES),
                                                 np.sin(a + i * np.pi / LOCAL_ANGLES)])
                            for i, r in enumerate(LOCAL_RADII)])          # (R x A, 2)
-    cc = c[:, None, :] + ring[None]
-    vv = np.repeat(v[:, None, :], len(ring), axis=1)
-    s = _sample_sum(frames, offs, dts, cc, vv, h, w, bilinear=True)
+    s, n_f = _parallel_sums(evidence, c, v, ring)
     s = s.astype(np.float64) / (evidence.sigma * np.sqrt(n_f))
     med, spread = median_mad_sigma(s)
     return (np.asarray(z, np.float64) - med) / np.maximum(spread, 1.0)

@@ -269,9 +269,8 @@ def merge_windows(found, x, y, t, scan, *, sigma: float, fit_confidence: float):
         fit, 2n - 4 degrees of freedom, within ``fit_confidence``): two targets that cross
         fail the fit; a target whose track one window missed is still one track. Where
         both hold a measurement of a combined frame, the earlier track's is kept. A
-        merged track is
-        the fit of the union with the group's best score; a track merged with none is
-        returned as it was.
+        merged track is the fit of the union with the group's best score; a track merged
+        with none is returned as it was.
     """
     from scipy.special import chdtri
 

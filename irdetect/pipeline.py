@@ -211,7 +211,8 @@ def _front(block, previous, params: _StageParams, timings: dict | None, followin
     t = time.perf_counter()
     residual = suppress(block, previous=previous, following=following, **params.suppress)
     t = _lap(timings, "suppress", t)
-    if params.matched and params.combine["projection"] == "dp" and params.psf > 0:
+    presmoothed = params.matched and params.combine["projection"] == "dp" and params.psf > 0
+    if presmoothed:
         # the dp merit and the matched filter smooth with the same Gaussian: smooth each
         # residual once, in place, and tell both stages it is done (same values)
         for r in residual:
@@ -222,7 +223,7 @@ def _front(block, previous, params: _StageParams, timings: dict | None, followin
     matched = None
     if params.matched:
         # the residuals become the matched frames in place (no second window of frames)
-        smooth = 0.0 if params.combine["projection"] == "dp" and params.psf > 0 else params.psf
+        smooth = 0.0 if presmoothed else params.psf
         standardise([matched_frame(r, smooth, out=r) for r in residual])
         matched = residual
     del residual
@@ -255,7 +256,6 @@ def _evidence(pending, cc) -> Evidence | None:
                     times=tuple(p.start + at for p in pending),
                     report=tuple(p.start + mid for p in pending), sigma=noise_level(frames),
                     leads=DP_LEADS if dp else (0.0,))
-
 
 
 class _Ready:

@@ -27,7 +27,7 @@ import os
 from pathlib import Path
 
 from irdetect import data_dir
-from irdetect.config import ProcessConfig, from_dict, read_toml
+from irdetect.config import ProcessConfig, from_dict, merge_tables, read_toml
 from irdetect.errors import InputError
 
 
@@ -59,9 +59,5 @@ def load_profile(name: str = "default", config: str | os.PathLike | None = None,
     data = {} if path is None else read_toml(path)
     from_dict(cls, data, path=path)                   # a broken profile names itself
     if config is not None:
-        for key, value in read_toml(config).items():
-            if isinstance(value, dict) and isinstance(data.get(key), dict):
-                data[key] = {**data[key], **value}
-            else:
-                data[key] = value
+        merge_tables(data, read_toml(config))
     return from_dict(cls, data, path=config if config is not None else path)

@@ -223,7 +223,8 @@ def future_frames(method: str, start: int, stop: int, *, history: int = 12, gap:
         reach = max(reach, int(history))
     if start >= lead or stop <= start:
         return 0
-    return max(0, min(stop, lead) - 1 + reach + 1 - stop)
+    # the last frame without a past, min(stop, lead) - 1, reaches ``reach`` frames ahead
+    return max(0, min(stop, lead) + reach - stop)
 
 
 #: ``auto``: a shift of this many px or more within the frames held means a moving camera
