@@ -93,42 +93,16 @@ class Evidence:
     leads: tuple = (0.0,)
 
 
-def _flat_frames(evidence: Evidence):
-    """(_Blocks, offset of each frame in its block, F, H, W): frame f is sampled at
-    ``offset[f] + y W + x`` of its block."""
+def _frame_blocks(evidence: Evidence) -> tuple[list, int]:
+    """The evidence frames as C-contiguous float32 blocks (F_j, H, W) (the pipeline's
+    blocks in place where they are float32 already), and F = sum F_j."""
     frames = evidence.frames
     if isinstance(frames, np.ndarray):
-        blocks = [frames]
-    elif len(frames) and np.ndim(frames[0]) == 3:
-        blocks = list(frames)
-    else:
-        blocks = [np.stack(frames)]
-    blocks = [np.ascontiguousarray(b) for b in blocks]
-    _, h, w = blocks[0].shape
-    offs = np.concatenate([np.arange(len(b), dtype=np.int64) for b in blocks]) * (h * w)
-    offs = offs.astype(np.int32 if max(b.size for b in blocks) < 2 ** 31 - 1 else np.int64)
-    return _Blocks(blocks), offs, len(offs), h, w
-
-
-class _Blocks:
-    """Frames in C-contiguous blocks along the frame axis, sampled in place:
-    ``take(index)`` with ``index`` (..., F) of flat positions inside each frame's block
-    returns the samples (..., F), the same values as from one stacked array."""
-
-    def __init__(self, blocks):
-        self.flats = [b.reshape(-1) for b in blocks]
-        ends = np.cumsum([len(b) for b in blocks])
-        self.spans = list(zip(ends - [len(b) for b in blocks], ends))
-
-    def take(self, index: np.ndarray) -> np.ndarray:
-        if len(self.flats) == 1:
-            return self.flats[0].take(index)
-        out = np.empty(index.shape, self.flats[0].dtype)
-        for flat, (a, b) in zip(self.flats, self.spans):
-            # positions are inside the block by construction (clipped coordinates), so
-            # "clip" changes nothing and spares numpy the buffered bounds check
-            np.take(flat, index[..., a:b], out=out[..., a:b], mode="clip")
-        return out
+        frames = [frames]
+    elif len(frames) and np.ndim(frames[0]) == 2:
+        frames = [np.stack(frames)]
+    blocks = [np.ascontiguousarray(b, dtype=np.float32) for b in frames]
+    return blocks, sum(len(b) for b in blocks)
 
 
 #: the ``dp`` merit's fused point trails its target: the merit of the path's recent
@@ -229,14 +203,14 @@ def track_significance(evidence: Evidence, points: np.ndarray, screen: float = -
     Notes
     -----
     The coarse stage samples the nearest pixel (a 1-px grid on PSF-smoothed frames),
-    the finer stages bilinearly. Vectorised over segments, hypotheses and frames, in
-    chunks of ``CHUNK`` samples, or up to a 16th of the evidence's size for large frames
-    (temporary memory bounded by the evidence the pipeline holds anyway).
+    the finer stages bilinearly, with ``cv2.remap`` over all segments and hypotheses
+    at once, one call per block of evidence frames (``_sample_sum``); temporary memory
+    is bounded by an 8th of the evidence's size (``CHUNK``, ``CHUNK_MAX``).
     """
     p = np.asarray(points, np.float64).reshape(-1, 3, 2)
     if len(p) == 0:
         return np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2))
-    frames, offs, n_f, h, w = _flat_frames(evidence)
+    frames, n_f = _frame_blocks(evidence)
     t = np.asarray(evidence.index, np.float64)
     tm = float(t.mean())
     dts = (t - tm).astype(np.float32)
@@ -258,15 +232,13 @@ def track_significance(evidence: Evidence, points: np.ndarray, screen: float = -
             shift = np.repeat(lead, len(g) // len(lead))
         else:
             shift = np.zeros(len(g))
-        n_hyp = len(g)
-        chunk = max(1, max(CHUNK, min(CHUNK_MAX, n_f * h * w // 16)) // (n_hyp * n_f))
+        chunk = max(1, _budget(frames) // (len(g) * n_f))
         for a in range(0, len(live), chunk):      # a loop over chunks of segments
             rows = live[a:a + chunk]
             cc = c[rows, None, :] + v[rows, None, :] * shift[None, :, None] + g[None, :, :2]
-            # no velocity offsets (the first stage): one velocity per segment, and
-            # _sample_sum forms v dt once for all its hypotheses
+            # no velocity offsets (the first stage): one velocity per segment
             vv = v[rows, None, :] + g[None, :, 2:] if len(dvel) > 1 else v[rows, None, :]
-            total = _sample_sum(frames, offs, dts, cc, vv, h, w, bilinear=stage > 0)
+            total = _sample_sum(frames, dts, cc, vv, bilinear=stage > 0)
             best = total.argmax(1)
             k = np.arange(len(rows))
             c[rows], v[rows] = cc[k, best], vv[k, best if len(dvel) > 1 else 0]
@@ -295,12 +267,11 @@ def ring_significance(evidence: Evidence, c: np.ndarray, v: np.ndarray) -> np.nd
 def _parallel_sums(evidence: Evidence, c, v, offsets):
     """Track sums (n, R) float32 of the tracks c + offsets[r], velocity v (offsets (R, 2)
     px), bilinear, and the number of frames F they sum over."""
-    frames, offs, n_f, h, w = _flat_frames(evidence)
+    frames, n_f = _frame_blocks(evidence)
     t = np.asarray(evidence.index, np.float64)
     dts = (t - t.mean()).astype(np.float32)
     cc = c[:, None, :] + offsets[None]
-    vv = np.repeat(v[:, None, :], len(offsets), axis=1)
-    return _sample_sum(frames, offs, dts, cc, vv, h, w, bilinear=True), n_f
+    return _sample_sum(frames, dts, cc, v[:, None, :], bilinear=True), n_f
 
 
 #: the local test of a verified track (``local_significance``): parallel tracks at these
@@ -354,61 +325,67 @@ def local_significance(evidence: Evidence, c: np.ndarray, v: np.ndarray,
     return (np.asarray(z, np.float64) - med) / np.maximum(spread, 1.0)
 
 
-#: samples (segments x hypotheses x frames) per chunk of ``track_significance``
+#: samples (segments x hypotheses x frames of a block) per ``cv2.remap`` call and
+#: hypotheses per chunk of ``track_significance``: an 8th of the evidence's size
+#: (temporaries bounded by the evidence the pipeline holds anyway), within these limits
 CHUNK = 1 << 13
-#: largest chunk, for large evidence stacks (fewer Python rounds per sample)
 CHUNK_MAX = 1 << 18
 
 
-def _sample_sum(frames, offs, dts, cc, vv, h, w, bilinear):
-    """sum over frames of the stacked frames at c + v dt: (n, hyp) float32.
+def _budget(blocks) -> int:
+    return max(CHUNK, min(CHUNK_MAX, sum(b.size for b in blocks) // 8))
 
-    float32 throughout, in place where it can be (few temporaries); the arithmetic and
-    the order of the sum over frames are fixed (a rewrite must give the same values).
+
+def _sample_sum(blocks, dts, cc, vv, bilinear):
+    """Track sums: sum_f S_f(c + v dts[f]) over the evidence frames, per hypothesis.
+
+    Parameters
+    ----------
+    blocks : list of float32 ndarray (F_j, H, W)
+        The evidence frames S_f in blocks (F = sum F_j), C-contiguous.
+    dts : ndarray of shape (F,)
+        Each frame's time relative to the evidence's middle frame.
+    cc : ndarray of shape (n, hyp, 2)
+        Track positions (x, y) at the middle frame.
+    vv : ndarray of shape (n, hyp, 2) or (n, 1, 2)
+        Velocities (x, y) in px/frame.
+    bilinear : bool
+        Bilinear interpolation, else the nearest pixel.
+
+    Returns
+    -------
+    ndarray of float32, shape (n, hyp)
+
+    Notes
+    -----
+    A block of frames is one tall (F_j H, W) image, so one ``cv2.remap`` samples every
+    hypothesis in all of its frames: positions are clamped to the frame (the border
+    pixels' values outside it) and frame f's rows are offset by f H.
     """
     f32 = np.float32
     n, hyp = cc.shape[:2]
-    # v dt first: with no velocity offsets it is the same for every hypothesis (a
-    # broadcast product, the same values as one per hypothesis)
-    x = np.multiply(vv[..., 0, None].astype(f32), dts)
-    x = np.add(x, cc[..., 0, None].astype(f32), out=x if x.shape[1] == hyp else None)
-    y = np.multiply(vv[..., 1, None].astype(f32), dts)
-    y = np.add(y, cc[..., 1, None].astype(f32), out=y if y.shape[1] == hyp else None)
-    if not bilinear:
-        x += f32(0.5)
-        y += f32(0.5)
-        np.clip(x, 0, w - 1, out=x)
-        np.clip(y, 0, h - 1, out=y)
-        index = y.astype(offs.dtype)
-        index *= w
-        index += x.astype(offs.dtype)
-        index += offs
-        return frames.take(index).sum(axis=-1)
-    np.clip(x, 0, w - 1.001, out=x)
-    np.clip(y, 0, h - 1.001, out=y)
-    x0, base = x.astype(offs.dtype), y.astype(offs.dtype)
-    x -= x0                                          # fx
-    y -= base                                        # fy
-    base *= w
-    base += x0
-    base += offs
-    top = frames.take(base)                          # top-left
-    base += 1
-    right = frames.take(base)                        # top-right
-    right -= top
-    right *= x
-    top += right                                     # top row at fx
-    base += w
-    bottom = frames.take(base)                       # bottom-right
-    base -= 1
-    left = frames.take(base)                         # bottom-left
-    bottom -= left
-    bottom *= x
-    left += bottom                                   # bottom row at fx
-    left -= top
-    left *= y
-    top += left
-    return top.sum(axis=-1)
+    inter = cv2.INTER_LINEAR if bilinear else cv2.INTER_NEAREST
+    total = np.zeros((n, hyp), f32)
+    x0, y0 = cc[..., 0].astype(f32), cc[..., 1].astype(f32)           # (n, hyp)
+    vx, vy = vv[..., 0].astype(f32), vv[..., 1].astype(f32)           # (n, hyp or 1)
+    budget = _budget(blocks)
+    first = 0
+    for block in blocks:
+        m, h, w = block.shape
+        dt = dts[first:first + m, None, None]
+        rows = h * np.arange(m, dtype=f32)[:, None, None]
+        first += m
+        chunk = max(1, min(n, budget // max(1, hyp * m), 32767 // m))
+        for a in range(0, n, chunk):          # one round unless n x hyp x m is large
+            sl = slice(a, a + chunk)
+            mx = np.clip(vx[sl] * dt + x0[sl], 0, w - 1)                 # (m, k, hyp)
+            my = np.clip(vy[sl] * dt + y0[sl], 0, h - 1)
+            my += rows
+            k = mx.shape[1]
+            s = cv2.remap(block.reshape(m * h, w), mx.reshape(m * k, -1),
+                          my.reshape(m * k, -1), inter, borderMode=cv2.BORDER_REPLICATE)
+            total[sl] += s.reshape(m, k, hyp).sum(axis=0)
+    return total
 
 
 def correlate(points1, points2, points3, step: int, evidence: Evidence | None = None, *,
