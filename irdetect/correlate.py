@@ -392,7 +392,8 @@ def correlate(points1, points2, points3, step: int, evidence: Evidence | None = 
               max_speed: float = 2.0, tolerance: float = 5.0,
               constant_velocity: bool = True, max_deviation: float = 20.0,
               resolve: str = "cost", min_score: float = 3.5,
-              verify: float = 6.5, verify_local: float = 3.5) -> Correlation:
+              verify: float = 6.5, verify_local: float = 3.5,
+              screen: float = 0.25) -> Correlation:
     """Find 3-point segments through the fused points of 3 consecutive combined frames.
 
     Parameters
@@ -435,6 +436,12 @@ def correlate(points1, points2, points3, step: int, evidence: Evidence | None = 
         verified track must also stand ``verify_local`` robust sigmas above the
         parallel tracks around it (``local_significance``): a local CFAR test of the
         track sum, for clutter whose residue is correlated in time.
+    screen : float
+        Beyond the paper, a speed/recall trade-off of the verification (0 <= screen
+        <= 1): chains whose coarse statistic (the first, nearest-pixel search stage of
+        ``track_significance``) is under ``screen`` x ``verify`` are not refined and
+        fail. 0.25 (0.5 until issue 8's second round: it lost daub-data14's first
+        window, whose target's coarse value was 3.0 against a refined 24.8).
     resolve : {"cost", "unique", "all"}
         What to do when a point lies on several segments. ``all``: keep every segment
         (the literal set-valued eqs. 5-7). ``unique``: the paper's reading that
@@ -491,6 +498,8 @@ def correlate(points1, points2, points3, step: int, evidence: Evidence | None = 
         raise ValueError(f"verify must be a number >= 0, got {verify!r}")
     if not np.isfinite(verify_local) or verify_local < 0:
         raise ValueError(f"verify_local must be a number >= 0, got {verify_local!r}")
+    if not np.isfinite(screen) or not 0 <= screen <= 1:
+        raise ValueError(f"screen must be a number in [0, 1], got {screen!r}")
     if evidence is not None and not isinstance(evidence, Evidence):
         raise ValueError(f"evidence must be an Evidence, got {type(evidence).__name__}")
     scores = [_scores(p) for p in (points1, points2, points3)]
@@ -507,7 +516,7 @@ def correlate(points1, points2, points3, step: int, evidence: Evidence | None = 
         index, deviation = index[keep], deviation[keep]
     if evidence is not None and verify > 0:
         return _verified(pts, scores, index, int(step), evidence, float(verify), resolve,
-                         float(tolerance), float(verify_local))
+                         float(tolerance), float(verify_local), float(screen))
     if resolve == "unique":
         index, deviation = _unique(index, deviation)
     elif resolve == "cost":
@@ -519,10 +528,10 @@ def correlate(points1, points2, points3, step: int, evidence: Evidence | None = 
 
 
 def _verified(pts, scores, index, step, evidence, verify, resolve, tolerance,
-              verify_local=0.0) -> Correlation:
+              verify_local=0.0, screen=0.25) -> Correlation:
     points = (np.stack([pts[i][index[:, i]] for i in range(3)], axis=1) if len(index)
               else np.zeros((0, 3, 2)))
-    z, c, v = track_significance(evidence, points, screen=SCREEN * verify)
+    z, c, v = track_significance(evidence, points, screen=screen * verify)
     keep = z >= verify
     index, z, c, v = index[keep], z[keep], c[keep], v[keep]
     if len(z) and RING_RATIO > 0:
@@ -544,11 +553,6 @@ def _verified(pts, scores, index, step, evidence, verify, resolve, tolerance,
     segments = _segments(pts, scores, index, step)
     segments["vx"], segments["vy"] = v[:, 0], v[:, 1]
     return Correlation(segments=segments, index=index, positions=positions, significance=z)
-
-
-#: chains whose coarse significance (first search stage) is under SCREEN x verify are not
-#: refined: a target's coarse value is rarely below 0.6 of its refined one
-SCREEN = 0.5
 
 
 def _unique_rows(index) -> np.ndarray:

@@ -66,7 +66,8 @@ def test_empty_inputs():
 @pytest.mark.parametrize("kwargs, name", [
     ({"step": 0}, "step"), ({"max_speed": -1}, "max_speed"), ({"tolerance": -1}, "tolerance"),
     ({"max_deviation": 0}, "max_deviation"), ({"resolve": "best"}, "resolve"),
-    ({"min_score": float("nan")}, "min_score")])
+    ({"min_score": float("nan")}, "min_score"), ({"screen": -0.1}, "screen"),
+    ({"screen": 1.5}, "screen")])
 def test_bad_parameters_are_named(kwargs, name):
     args = {"step": 12, **kwargs}
     with pytest.raises(ValueError, match=name):
