@@ -90,7 +90,7 @@ class CorrelateConfig:
     min_score: float = 3.5
     verify: float = 6.5
     verify_local: float = 3.5
-    screen: float = 0.25
+    screen: float = 0.4
 
 
 # --- track initiation (zhang2010, liang2015; issues 4, 5) -----------------------------

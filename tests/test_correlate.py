@@ -157,3 +157,35 @@ def test_verification_rejects_a_moving_edge():
     from irdetect.correlate import track_significance
     z, c, v = track_significance(ev, np.stack(pts, axis=1))
     assert z[0] > 6.5
+
+
+@pytest.mark.parametrize("shape, bilinear, atol", [((12, 40, 30), True, 2e-4),
+                                                   ((12, 40, 30), False, 2e-4),
+                                                   ((5, 3000, 12), True, 0.02)])
+def test_track_sums_match_direct_interpolation(shape, bilinear, atol):
+    # the remap sampler (one tall image per block; frames of 3000 rows are sampled two
+    # per call, ``TALL_ROWS``: float32 rows up to 6000 keep about 1/2000 px, so a sample
+    # from a wrong frame, not rounding, is what the looser tolerance catches) against
+    # scipy's interpolation, positions clamped to the frame
+    from scipy.ndimage import map_coordinates
+
+    from irdetect.correlate import _sample_sum
+    rng = np.random.default_rng(5)
+    m, h, w = shape
+    blocks = [rng.normal(size=shape).astype(np.float32) for _ in range(2)]
+    dts = (np.arange(2 * m) - (2 * m - 1) / 2).astype(np.float32)
+    cc = np.column_stack([rng.uniform(-3, w + 3, 40), rng.uniform(-3, h + 3, 40)])
+    cc = cc.reshape(8, 5, 2)
+    vv = rng.uniform(-0.8, 0.8, (8, 5, 2))
+    got = _sample_sum(blocks, dts, cc, vv, bilinear=bilinear)
+    frames = np.concatenate(blocks)
+    want = np.zeros(got.shape)
+    for f, dt in enumerate(dts):
+        x = np.clip(cc[..., 0] + vv[..., 0] * dt, 0, w - 1)
+        y = np.clip(cc[..., 1] + vv[..., 1] * dt, 0, h - 1)
+        if not bilinear:
+            x, y = np.floor(x + 0.5), np.floor(y + 0.5)
+        want += map_coordinates(frames[f].astype(np.float64), [y.ravel(), x.ravel()],
+                                order=1, mode="nearest").reshape(got.shape)
+    assert got.shape == (8, 5)
+    np.testing.assert_allclose(got, want, atol=atol)

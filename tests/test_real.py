@@ -207,7 +207,7 @@ def test_bad_lead_in_parameters_are_named(kwargs, name):
 #: (``correlate.verify_local``); easy1's broad target was lost when that test's ring came
 #: closer than 5 px; 13-a's window 0 needs the look-ahead background of the first frames
 #: (``suppress.lead_in``), 15-a's last windows ``correlate.max_speed`` 2, 14's first
-#: window ``correlate.screen`` 0.25 (7/8 and 1 false at 0.5)
+#: window ``correlate.screen`` 0.4 (7/8 and 1 false at 0.5)
 REAL_FLOORS = (("daub-data20", 8, 7, 0.125, 3.0), ("daub-data13-b", 8, 7, 0.125, 3.0),
                ("daub-data13-a", 8, 7, 0.125, 3.0), ("daub-data15-a", 8, 7, 0.125, 3.0),
                ("daub-data14", 8, 8, 0.0, 3.0),
