@@ -502,27 +502,40 @@ def _run_ranges(input, dataset, config, ranges, processes, workers, timings, pro
     from concurrent.futures import ProcessPoolExecutor
 
     bar = _bar(n_frames, progress)
-    with tempfile.TemporaryDirectory(prefix="irdetect-") as tmp, ProcessPoolExecutor(
-            int(processes) - 1, mp_context=multiprocessing.get_context("spawn")) as pool:
-        paths = [os.path.join(tmp, f"range{i}.h5") for i in range(len(ranges))]
+    step = config.combine.step
+
+    def finished(i: int) -> None:
+        if bar is not None:
+            lo, hi = ranges[i]
+            bar.update(min(n_frames, hi * step) - lo * step)
+
+    tmp = tempfile.TemporaryDirectory(prefix="irdetect-")
+    pool = ProcessPoolExecutor(int(processes) - 1,
+                               mp_context=multiprocessing.get_context("spawn"))
+    try:
+        paths = [os.path.join(tmp.name, f"range{i}.h5") for i in range(len(ranges))]
         jobs = (input, dataset, config, workers)
-        elsewhere = {i: pool.submit(_range_job, *jobs, ranges[i], paths[i])
-                     for i in reversed(range(1, len(ranges)))}
-        _add(timings, _range_job(*jobs, ranges[0], paths[0]))
-        for i in range(1, len(ranges)):
-            if not elsewhere[i].cancel():
-                break
-            del elsewhere[i]
+        elsewhere = {}
+        for i in reversed(range(1, len(ranges))):
+            elsewhere[i] = pool.submit(_range_job, *jobs, ranges[i], paths[i])
+            elsewhere[i].add_done_callback(
+                lambda f, i=i: None if f.cancelled() or f.exception() else finished(i))
+        for i in range(len(ranges)):
+            if i and not elsewhere[i].cancel():
+                break                    # from here on the other processes have them
+            elsewhere.pop(i, None)
             _add(timings, _range_job(*jobs, ranges[i], paths[i]))
+            finished(i)
         for i, path in enumerate(paths):
             if i in elsewhere:
                 _add(timings, elsewhere[i].result())
             yield from _read_range(path)
             os.remove(path)
-            if bar is not None:
-                bar.update(min(n_frames, ranges[i][1] * config.combine.step) - bar.n)
-    if bar is not None:
-        bar.close()
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+        tmp.cleanup()
+        if bar is not None:
+            bar.close()
 
 
 def _range_job(input, dataset, config, workers, window_range, path) -> dict:

@@ -64,6 +64,8 @@ TRACKPY_QUANTILES = (0.9, 0.97, 0.975, 0.98, 0.985, 0.99, 0.995, 0.998, 0.999, 0
 MIN_TRACK = 12
 #: section 3: (label, {stage: {field: value}}) applied on top of the configuration run
 VARIANTS = (
+    ("verification screen 0.5 (correlate.screen, the constant before the third round)",
+     {"correlate": {"screen": 0.5}}),
     ("previous default: top-hat stand-in, local test 4, max_speed 1.5, max_deviation 14",
      {"suppress": {"lead_in": "tophat"},
       "correlate": {"verify_local": 4.0, "max_speed": 1.5, "max_deviation": 14.0}}),

@@ -129,10 +129,12 @@ def _peak():
 """
 
 #: ``irdetect process`` exactly as ``python -m irdetect`` runs it, then the peak RSS; the
-#: run is timed after the imports the CLI does at start-up (``build_parser``)
+#: run is timed after the imports the CLI does at start-up (``build_parser``) and those
+#: its ``process`` command does first (the pipeline's: numpy, scipy, OpenCV, h5py)
 CLI = PEAK + """
 import sys, time
 from irdetect.cli import build_parser, main
+import irdetect.initiate, irdetect.pipeline
 build_parser()
 t0 = time.perf_counter()
 code = main(sys.argv[1:])
