@@ -52,7 +52,7 @@ def min_frames(config: ProcessConfig | None = None) -> int:
 
 def iter_results(frames, config: ProcessConfig | None = None, *,
                  progress: bool = False, workers: int = 1,
-                 timings: dict | None = None, windows: tuple | None = None) -> Iterator[dict]:
+                 timings: dict | None = None) -> Iterator[dict]:
     """Run the front end over a sequence, yielding results as combined frames complete.
 
     Parameters
@@ -72,11 +72,6 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
     timings : dict, optional
         When given, seconds spent per stage are added to it under ``read``, ``suppress``,
         ``combine``, ``detect``, ``fuse``, ``correlate`` (summed over threads).
-    windows : (int, int), optional
-        Only combined frames lo <= k < hi are yielded (the whole sequence when None):
-        the 2 windows on either side are computed too, so these results are the same
-        as a whole run's (``process_file`` runs ranges on several processes this way).
-        Segment ids then count from 0 within the range.
 
     Yields
     ------
@@ -104,11 +99,6 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
     if int(workers) != workers or workers < 1:
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     starts = window_starts(n_frames, length=cc.length, step=cc.step)
-    lo, hi = (0, len(starts)) if windows is None else (int(windows[0]), int(windows[1]))
-    if not 0 <= lo < hi <= len(starts):
-        raise ValueError(f"windows must satisfy 0 <= lo < hi <= {len(starts)}, got {windows}")
-    # the windows whose fronts are computed: every triple through lo..hi-1
-    k0, k1 = max(0, lo - (N_CORRELATE - 1)), min(len(starts), hi + N_CORRELATE - 1)
     params = _StageParams(config)
     # the first window(s) look ahead: their first frames have no past (``lead_in``)
     ahead = [future_frames(start=int(s), stop=int(s) + cc.length, **params.suppress)
@@ -137,41 +127,35 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
         return pool.submit(_front, block, previous, params, timings, following)
 
     corrs: deque = deque()       # correlations of window triples submitted, in order
-    first = k0                   # the oldest pending window
+    first = 0                    # the oldest pending window
 
-    def take() -> dict | None:
+    def take() -> dict:
         """Confirm the oldest triple's points by its segments; emit its first window."""
         nonlocal segment_id, first
         corr = corrs.popleft().result()
         segments = corr.segments
         segments["combined_frame"] = first
+        segments["segment_id"] = np.arange(segment_id, segment_id + len(segments))
+        segment_id += len(segments)
         for i, p in enumerate(list(pending)[:N_CORRELATE]):
             p.confirm(corr.index[:, i], segments, corr.positions[:, i])
         first += 1
-        out = emit(pending.popleft(), segments)
-        if out is not None:
-            segments["segment_id"] = np.arange(segment_id, segment_id + len(segments))
-            segment_id += len(segments)
-        return out
-
-    def emit(p: "_Pending", segments) -> dict | None:
-        return p.emit(segments) if lo <= p.index < hi else None
+        return pending.popleft().emit(segments)
 
     try:
-        submitted = k0
-        for k in range(k0, k1):
-            s = starts[k]
-            while submitted < k1 and len(fronts) < (1 if pool is None else workers):
+        submitted = 0
+        for k, s in enumerate(starts):
+            while submitted < len(starts) and len(fronts) < (1 if pool is None else workers):
                 fronts.append(submit(submitted))
                 submitted += 1
             cand, n_pixels, matched = fronts.popleft().result()
             cand["frame_start"], cand["frame_end"] = s, s + cc.length - 1
             cand["combined_frame"] = k
             pending.append(_Pending(cand, cc.length if cc.projection == "dp" else 0,
-                                    matched, int(s), config.correlate.tolerance, index=k))
+                                    matched, int(s), config.correlate.tolerance))
             log.debug("combined frame %d (frames %d-%d): %d candidate pixels, %d fused points",
                       k, s, s + cc.length - 1, n_pixels, len(cand))
-            if k >= k0 + N_CORRELATE - 1:
+            if k >= N_CORRELATE - 1:
                 # windows k-2, k-1, k: with a pool their correlation runs beside the next
                 # windows' front end; the results are taken up in order
                 triple = list(pending)[-N_CORRELATE:]
@@ -180,17 +164,14 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
                 else:
                     corrs.append(pool.submit(_correlate, triple, cc, params, timings))
             while len(corrs) > (0 if pool is None else workers):
-                if (out := take()) is not None:
-                    yield out
+                yield take()
             if bar is not None:
                 bar.update(int(min(starts[k + 1] if k + 1 < len(starts) else n_frames,
                                    n_frames) - bar.n))
         while corrs:
-            if (out := take()) is not None:
-                yield out
+            yield take()
         while pending:
-            if (out := emit(pending.popleft(), tables.empty(tables.SEGMENT))) is not None:
-                yield out
+            yield pending.popleft().emit(tables.empty(tables.SEGMENT))
     finally:
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
@@ -341,8 +322,7 @@ def initiate_tracks(detections: np.ndarray, config: ProcessConfig) -> np.ndarray
 
 def process_file(input, output, config: ProcessConfig | None = None, *, dataset=None,
                  force: bool = False, progress: bool = False, attrs: dict | None = None,
-                 workers: int = 1, processes: int | str = 1,
-                 timings: dict | None = None) -> dict:
+                 workers: int = 1, timings: dict | None = None) -> dict:
     """Run ``irdetect process``: read a sequence, write a results file.
 
     Parameters
@@ -363,17 +343,9 @@ def process_file(input, output, config: ProcessConfig | None = None, *, dataset=
         fingerprint here so a re-run can skip finished inputs).
     workers : int
         Threads over windows (``iter_results``); the results do not depend on it.
-    processes : int or "auto"
-        Processes (>= 1) over ranges of ``RANGE_WINDOWS`` combined frames: this one and
-        ``processes - 1`` started ones, each range computing the 2 windows on either
-        side it needs (the results do not depend on it; see ``_run_ranges``). Sequences
-        of fewer than 2 ranges, and video files (no random access), run in this process.
-        ``"auto"``: ``auto_processes`` decides, with one thread per process when it
-        starts others (``workers`` otherwise). A script that calls this with several
-        processes needs the ``if __name__ == "__main__":`` guard of ``multiprocessing``.
     timings : dict, optional
         Seconds per stage are added to it (``iter_results``, plus ``write`` for the
-        results file and ``initiate`` for track initiation; summed over processes).
+        results file and ``initiate`` for track initiation).
 
     Returns
     -------
@@ -406,29 +378,13 @@ def process_file(input, output, config: ProcessConfig | None = None, *, dataset=
                  "combined_step": config.combine.step,
                  "n_frames": n_frames, "frame_height": height, "frame_width": width,
                  **(attrs or {})}
-        n_windows = len(window_starts(n_frames, length=config.combine.length,
-                                      step=config.combine.step))
-        if processes == "auto":
-            processes = auto_processes(n_windows, height, width)
-            workers = 1 if processes > 1 else workers
-        ranges = _ranges(n_windows, processes) if src.random_access else [(0, n_windows)]
         detections = []
         with ResultsWriter(output, force=force, attrs=attrs) as out:
             n_combined = 0
-            if len(ranges) > 1:
-                chunks = _run_ranges(input, dataset, config, ranges, processes, workers,
-                                     timings, progress, n_frames)
-            else:
-                chunks = iter_results(src, config, progress=progress, workers=workers,
-                                      timings=timings)
-            segment_id = 0
-            for chunk in chunks:
+            for chunk in iter_results(src, config, progress=progress, workers=workers,
+                                      timings=timings):
                 t = time.perf_counter()
                 n_combined += 1
-                # ranges number their segments from 0: one numbering for the file
-                chunk["segments"]["segment_id"] = np.arange(
-                    segment_id, segment_id + len(chunk["segments"]))
-                segment_id += len(chunk["segments"])
                 for name, rows in chunk.items():
                     out.append(name, rows)
                     counts[name] += len(rows)
@@ -449,143 +405,14 @@ def process_file(input, output, config: ProcessConfig | None = None, *, dataset=
             "tracks": int(len(tracks)), "seconds": seconds}
 
 
-#: combined frames per range of a multi-process run (``process_file(processes=...)``):
-#: each range also computes the 2 windows on either side of it (16 % more fronts at 25)
-RANGE_WINDOWS = 25
-
-
-#: ``auto_processes``: sequences of at least this many combined frames (2,400 frames at
-#: the defaults) and frames of at most AUTO_MAX_PIXELS run on 2 processes
-AUTO_MIN_WINDOWS = 200
-AUTO_MAX_PIXELS = 512 * 512
-
-
-def auto_processes(n_windows: int, height: int, width: int) -> int:
-    """Processes for ``process_file(processes="auto")``: 2 (on 2 cores or more) for long
-    sequences of small frames, else 1.
-
-    Measured on 2 cores (docs/results/throughput.md): a started process costs about
-    0.5 s (interpreter and imports), so short sequences run faster on threads; two
-    processes hold two sets of frame buffers, so large frames stay in one process
-    (peak memory).
-    """
-    cores = os.cpu_count() or 1
-    if cores >= 2 and n_windows >= AUTO_MIN_WINDOWS and height * width <= AUTO_MAX_PIXELS:
-        return 2
-    return 1
-
-
-def _ranges(n_windows: int, processes: int) -> list[tuple[int, int]]:
-    """Ranges [lo, hi) of about ``RANGE_WINDOWS`` combined frames, or one range."""
-    if int(processes) != processes or processes < 1:
-        raise ValueError(f"processes must be an integer >= 1, got {processes!r}")
-    n = n_windows // RANGE_WINDOWS if processes > 1 else 1
-    if n < 2:
-        return [(0, n_windows)]
-    edges = np.linspace(0, n_windows, n + 1).round().astype(int)
-    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
-
-
-def _run_ranges(input, dataset, config, ranges, processes, workers, timings, progress,
-                n_frames) -> Iterator[dict]:
-    """Results of every combined frame, in order, computed range by range on this
-    process and ``processes - 1`` started ones (``spawn``: OpenCV's thread pool does not
-    survive a fork).
-
-    The other processes take ranges from the end of the sequence, this one from the
-    start, until they meet (a range not yet started elsewhere is cancelled there and run
-    here), so neither waits while the other still has work. Each range's tables go
-    through a temporary HDF5 file, read back in order: memory stays bounded.
-    """
-    import multiprocessing
-    import tempfile
-    from concurrent.futures import ProcessPoolExecutor
-
-    bar = _bar(n_frames, progress)
-    step = config.combine.step
-
-    def finished(i: int) -> None:
-        if bar is not None:
-            lo, hi = ranges[i]
-            bar.update(min(n_frames, hi * step) - lo * step)
-
-    tmp = tempfile.TemporaryDirectory(prefix="irdetect-")
-    pool = ProcessPoolExecutor(int(processes) - 1,
-                               mp_context=multiprocessing.get_context("spawn"))
-    try:
-        paths = [os.path.join(tmp.name, f"range{i}.h5") for i in range(len(ranges))]
-        jobs = (input, dataset, config, workers)
-        elsewhere = {}
-        for i in reversed(range(1, len(ranges))):
-            elsewhere[i] = pool.submit(_range_job, *jobs, ranges[i], paths[i])
-            elsewhere[i].add_done_callback(
-                lambda f, i=i: None if f.cancelled() or f.exception() else finished(i))
-        for i in range(len(ranges)):
-            if i and not elsewhere[i].cancel():
-                break                    # from here on the other processes have them
-            elsewhere.pop(i, None)
-            _add(timings, _range_job(*jobs, ranges[i], paths[i]))
-            finished(i)
-        for i, path in enumerate(paths):
-            if i in elsewhere:
-                _add(timings, elsewhere[i].result())
-            yield from _read_range(path)
-            os.remove(path)
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
-        tmp.cleanup()
-        if bar is not None:
-            bar.close()
-
-
-def _range_job(input, dataset, config, workers, window_range, path) -> dict:
-    """Process the combined frames ``window_range`` of ``input`` into ``path``; returns
-    the seconds per stage."""
-    from irdetect.io import ResultsWriter, open_sequence
-
-    timings: dict = {}
-    with open_sequence(input, dataset) as src, ResultsWriter(path, force=True) as out:
-        for chunk in iter_results(src, config, workers=workers, timings=timings,
-                                  windows=window_range):
-            for name, rows in chunk.items():
-                out.append(name, rows)
-            # one row per combined frame tells the reader where its rows end
-            out.append("_ends", np.array([(len(chunk["candidates"]),
-                                           len(chunk["detections"]),
-                                           len(chunk["segments"]))], _ENDS))
-    return timings
-
-
-_ENDS = np.dtype([("candidates", "<i8"), ("detections", "<i8"), ("segments", "<i8")])
-
-
-def _read_range(path) -> Iterator[dict]:
-    """The per-combined-frame results that ``_range_job`` wrote, in order."""
-    import h5py
-
-    with h5py.File(path, "r") as f:
-        ends = f["_ends"][:]
-        data = {name: f[name][:] for name in _ENDS.names}
-    starts = {name: np.concatenate([[0], np.cumsum(ends[name])]) for name in _ENDS.names}
-    for k in range(len(ends)):
-        yield {name: data[name][starts[name][k]:starts[name][k + 1]] for name in _ENDS.names}
-
-
-def _add(timings: dict | None, more: dict) -> None:
-    if timings is not None:
-        for name, seconds in more.items():
-            timings[name] = timings.get(name, 0.0) + seconds
-
-
 # --- helpers --------------------------------------------------------------------------
 
 class _Pending:
     """Candidates of one combined frame waiting for the segments that may confirm them."""
 
     def __init__(self, table: np.ndarray, dp_length: int = 0, matched=None, start: int = 0,
-                 tolerance: float = 5.0, index: int = 0):
+                 tolerance: float = 5.0):
         self.table = table
-        self.index = index          # the combined frame
         self.tolerance = tolerance  # verified positions this close are one target
         self.dp_length = dp_length
         self.matched = matched      # matched residual frames of the window (or None)

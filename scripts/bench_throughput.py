@@ -7,20 +7,17 @@ For each frame size (256x256, 320x240, 640x512; uint16, simulated into a tempora
 1. the raw floor: reading the frames with h5py (chunk-aligned ``read_direct`` into one
    buffer) and taking the max of every 12-frame window;
 2. ``irdetect process`` end to end as a child process (the CLI a user runs), for the
-   default configuration and ``--profile fast``, each with the CLI's default (at 1,200
-   frames: one process, 2 threads), with ``--threads 1`` and with ``--processes 2``:
-   wall time with and without interpreter start-up and imports, CPU time, peak RSS
-   (with ``--processes 2``: the CLI's plus its largest child's, an upper bound of the
-   sum);
+   default configuration and ``--profile fast``, each with the CLI's default 2 threads
+   and with ``--threads 1``: wall time with and without interpreter start-up and
+   imports, CPU time, peak RSS;
 3. per-stage seconds (``process_file(timings=...)`` in a child process), with 1 and 2
    worker threads, for the default configuration, for ``suppress.method =
    "temporal"`` (the static-camera path) and for the ``fast`` profile;
 4. trackpy ``locate`` frames/s on the same frames (the peer a user would reach for;
    skipped with a note when trackpy is not installed: it is not a dependency).
 
-Then streaming memory: peak RSS of ``irdetect process --processes 1`` (temporal
-suppressor, and the fast profile) on 20,000 frames of 256x256 (``--long``) against the
-1,200-frame run, and the CLI's default there (``--processes auto``: 2 processes).
+Then streaming memory: peak RSS of ``irdetect process`` (temporal suppressor, and the fast
+profile) on 20,000 frames of 256x256 (``--long``) against the 1,200-frame run.
 
 The machine has 2 cores; other sessions may be loading them, so the table records the
 load average before and after and reports CPU-time frames/s next to wall-clock frames/s.
@@ -58,10 +55,8 @@ RUNS = (("default (auto)", "default", False, 1), ("default (auto)", "default", F
         ("fast, temporal", "fast", True, 1))
 #: ``irdetect process`` runs per size: (label, options); the CLI's default is --threads 2
 CLI_RUNS = (("default", []), ("default --threads 1", ["--threads", "1"]),
-            ("default --processes 2", ["--processes", "2"]),
             ("--profile fast", ["--profile", "fast"]),
-            ("--profile fast --threads 1", ["--profile", "fast", "--threads", "1"]),
-            ("--profile fast --processes 2", ["--profile", "fast", "--processes", "2"]))
+            ("--profile fast --threads 1", ["--profile", "fast", "--threads", "1"]))
 
 
 # --- inputs -----------------------------------------------------------------------------
@@ -116,16 +111,12 @@ def raw_floor(path: Path, length: int = 12) -> dict:
 #: appended to every child: print its peak RSS. VmHWM of /proc/self/status belongs to
 #: the process image after exec; getrusage's ru_maxrss would include the (large) RSS of
 #: this benchmark process at fork time, which Linux carries over into the child.
-#: The processes that ``--processes`` starts have ended by then: the largest one's peak
-#: (getrusage of the children, in KB on Linux) is added, an upper bound of the sum.
 PEAK = """
 def _peak():
-    import resource, sys
+    import sys
     for line in open("/proc/self/status"):
         if line.startswith("VmHWM:"):
-            own = int(line.split()[1])
-    child = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    print("PEAK_RSS_KB", own + child, file=sys.stderr)
+            print("PEAK_RSS_KB", int(line.split()[1]), file=sys.stderr)
 """
 
 #: ``irdetect process`` exactly as ``python -m irdetect`` runs it, then the peak RSS; the
@@ -293,10 +284,9 @@ def measure(args) -> dict:
             for n in sorted({args.frames, args.long}):
                 seq = tmp / f"long_{n}.h5"
                 gen = generate(seq, 256, 256, n, seed=1)
-                one = ["--processes", "1"]
-                r = run_cli(seq, tmp / "out.h5", temporal, options=one)
-                r_fast = run_cli(seq, tmp / "out.h5", options=["--profile", "fast", *one])
-                r_auto = run_cli(seq, tmp / "out.h5")       # the CLI's default
+                r = run_cli(seq, tmp / "out.h5", temporal)
+                r_fast = run_cli(seq, tmp / "out.h5", options=["--profile", "fast"])
+                r_auto = run_cli(seq, tmp / "out.h5") if n == args.frames else None
                 long_rows.append((n, r, r_auto, r_fast))
                 print(f"long {n}: simulated in {gen:.0f} s, rss {r['rss_mb']:.0f} MB "
                       f"(fast {r_fast['rss_mb']:.0f} MB), {fps(n, r['wall'])} fps", flush=True)
@@ -335,10 +325,8 @@ def report(data: dict) -> str:
         "`fast`: `--profile fast` (no verification; quality in docs/results/profiles.md); "
         "`temporal`: the default with `suppress.method = \"temporal\"` (the still-camera "
         "suppressor without `auto`'s motion check); `fast, temporal`: the fast profile "
-        "with it. At 1,200 frames `irdetect process` runs one process of 2 threads unless "
-        "`--threads 1` or `--processes 2` (2 processes of one thread; the CLI's `auto` "
-        "picks them for 2,400 frames and more of at most 512x512 px); the results do not "
-        "depend on either.",
+        "with it. `irdetect process` runs 2 threads "
+        "unless `--threads 1` (`--threads`: the results do not depend on it).",
         "",
         "## End to end: `irdetect process` from HDF5",
         "",
@@ -402,19 +390,14 @@ def report(data: dict) -> str:
             "",
             "## Streaming memory: peak RSS against sequence length (256x256)",
             "",
-            "One process (`--processes 1`) for the memory comparison; the last columns are "
-            "the CLI's default, which starts a second process for the long sequence (peak "
-            "RSS: both processes' peaks added).",
-            "",
-            "| frames | `--processes 1` (temporal) peak RSS MB | fps in the run | `--profile "
-            "fast --processes 1` peak RSS MB | fast fps in the run | default peak RSS MB | "
-            "default fps in the run |",
-            "|---|---|---|---|---|---|---|",
+            "| frames | `irdetect process` (temporal) peak RSS MB | fps in the run | default "
+            "peak RSS MB | `--profile fast` peak RSS MB | fast fps in the run |",
+            "|---|---|---|---|---|---|",
         ]
         for frames, r, r_auto, r_fast in long_rows:
+            auto = "-" if r_auto is None else f"{r_auto['rss_mb']:.0f}"
             lines.append(f"| {frames:,} | {r['rss_mb']:.0f} | {fps(frames, r['run'])} | "
-                         f"{r_fast['rss_mb']:.0f} | {fps(frames, r_fast['run'])} | "
-                         f"{r_auto['rss_mb']:.0f} | {fps(frames, r_auto['run'])} |")
+                         f"{auto} | {r_fast['rss_mb']:.0f} | {fps(frames, r_fast['run'])} |")
     lines += ["", "## Where the time goes (1 worker)", ""]
     for name, label, workers, st in stage_rows:
         if label in ("default (auto)", "fast") and workers == 1:
@@ -449,9 +432,7 @@ def report(data: dict) -> str:
                      f"{'reached' if worst[1] >= 20 else 'not reached'}.")
     peaks = [(f"{name} `{label}`", r["rss_mb"]) for name, _, cli in rows
              for label, r in cli.items()]
-    peaks += [(f"{frames:,} frames of 256x256{what}", r["rss_mb"])
-              for frames, r1, r2, _ in long_rows
-              for what, r in ((" (--processes 1)", r1), (" (default)", r2))]
+    peaks += [(f"{frames:,} frames of 256x256", r["rss_mb"]) for frames, r, _, _ in long_rows]
     if peaks:
         top = max(peaks, key=lambda kv: kv[1])
         lines.append(f"- peak memory under 400 MB for any length: highest peak RSS "
@@ -474,14 +455,15 @@ def report(data: dict) -> str:
         "`tests/test_fast.py`, `scripts/check_identity.py`). Each thread holds its own "
         "copy of a window's raw frames and its temporaries, so a second thread costs memory "
         "(see the RSS column).",
-        "- `--processes N` runs ranges of 25 combined frames on N processes (each range "
-        "computes the 2 windows on either side of it; identical tables, "
-        "`tests/test_memory.py`). Two processes are not twice one: the per-frame stages "
-        "make several passes over every frame and share the memory bandwidth (in one "
-        "test, 4,800 frames of 256x256: the stages' summed seconds grew about 1.5x with "
-        "two processes running), and a started process costs about 0.5 s.",
         "- The verification samples its track sums with `cv2.remap`, one call per window "
-        "block (a tall image), instead of numpy gathers.",
+        "block (the block as one tall image), instead of numpy gathers.",
+        "- Measured and not adopted: splitting a long sequence into ranges run on 2 "
+        "processes (each range computing the 2 windows on either side of it: identical "
+        "tables). On 4,800 frames of 256x256, 2 processes took 7.3-8.3 s for the default "
+        "and 3.5-3.8 s for `fast`, 2 threads 7.9-8.0 s and 2.8-3.4 s, 1 thread 11.1-12.0 s "
+        "and 3.5-4.1 s: the per-frame stages make several passes over every frame and "
+        "share the memory bandwidth (a compute-bound loop runs at full speed on both cores "
+        "at once), and a started process costs about 0.5 s of imports.",
         "- Exact rewrites (bit-identical tables): tile medians by one numpy sort instead of "
         "`np.median`'s partition, fusion by flat candidate indices, no finite check on "
         "integer frames, no per-window concatenations, `auto`'s motion check on the 3 "

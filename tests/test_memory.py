@@ -6,7 +6,6 @@ the scene it then processes.
 
 from __future__ import annotations
 
-import os
 import tracemalloc
 
 import numpy as np
@@ -108,56 +107,6 @@ def test_threads_over_windows_give_the_same_tables(scene, workers):
             assert a[name].tobytes() == b[name].tobytes()
     assert sum(len(a["detections"]) for a in serial) > 0
     assert sum(len(a["segments"]) for a in serial) > 0
-
-
-def test_ranges_of_windows_give_the_same_tables():
-    # iter_results(windows=...) computes the 2 windows on either side of a range, so the
-    # ranges' results put together are the whole run's (process_file's processes)
-    frames, _ = simulate("wan2008", snr=3.0, rng=1, n_frames=240)
-    whole = list(iter_results(frames))
-    parts = [c for lo, hi in ((0, 7), (7, 8), (8, 15), (15, 20))
-             for c in iter_results(frames, windows=(lo, hi))]
-    assert len(parts) == len(whole) == 20
-    segment_id = 0
-    for a, b in zip(whole, parts):
-        n = len(b["segments"])                          # ranges count segments from 0
-        b["segments"]["segment_id"] = np.arange(segment_id, segment_id + n)
-        segment_id += n
-        for name in ("candidates", "detections", "segments"):
-            assert a[name].tobytes() == b[name].tobytes()
-    assert sum(len(a["segments"]) for a in whole) > 0
-    with pytest.raises(ValueError, match="windows"):
-        list(iter_results(frames, windows=(5, 5)))
-
-
-def test_processes_give_the_same_results_file(tmp_path, monkeypatch):
-    # 2 processes over ranges of 3 combined frames (RANGE_WINDOWS, made small so 120
-    # frames make 3 ranges): this process takes ranges from the start, the started one
-    # from the end; the file is byte for byte the serial one's in every table
-    import irdetect.pipeline as pipeline
-    from irdetect.pipeline import process_file
-
-    frames, _ = simulate("wan2008", snr=3.0, rng=2, n_frames=120)
-    seq = tmp_path / "seq.h5"
-    write_sequence(seq, frames)
-    monkeypatch.setattr(pipeline, "RANGE_WINDOWS", 3)
-    assert pipeline._ranges(10, 2) == [(0, 3), (3, 7), (7, 10)]
-    serial = process_file(seq, tmp_path / "p1.h5", processes=1)
-    split = process_file(seq, tmp_path / "p2.h5", processes=2)
-    assert serial == {**split, "seconds": serial["seconds"]}
-    a, b = read_results(tmp_path / "p1.h5"), read_results(tmp_path / "p2.h5")
-    for name in ("candidates", "detections", "segments", "tracks"):
-        assert a[name].tobytes() == b[name].tobytes(), name
-    assert len(a["detections"]) > 0 and len(a["tracks"]) > 0
-
-
-def test_auto_processes_only_for_long_sequences_of_small_frames():
-    from irdetect.pipeline import AUTO_MIN_WINDOWS, auto_processes
-
-    assert auto_processes(AUTO_MIN_WINDOWS - 1, 256, 256) == 1
-    assert auto_processes(AUTO_MIN_WINDOWS, 512, 640) == 1
-    assert auto_processes(AUTO_MIN_WINDOWS, 256, 256) == (2 if (os.cpu_count() or 1) > 1
-                                                          else 1)
 
 
 def test_timings_name_every_stage(tmp_path):

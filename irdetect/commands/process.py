@@ -54,11 +54,6 @@ def add_arguments(p):
                    help=f"single input: threads over windows (default {DEFAULT_THREADS}: the "
                    "correlation of each window triple runs beside the next windows' front "
                    "end); the results do not depend on it")
-    p.add_argument("--processes", default="auto", metavar="N",
-                   help="single input: processes over ranges of the sequence, one thread "
-                   "each (default auto: 2 for sequences of 2,400 frames or more with frames "
-                   "of at most 512x512 px, on 2 cores or more; else 1 with --threads); the "
-                   "results do not depend on it")
     p.add_argument("--dataset", help="HDF5 input: dataset path (default /frames)")
     p.add_argument("--force", action="store_true",
                    help="overwrite an existing output (batch: redo finished inputs)")
@@ -73,11 +68,10 @@ def run(args) -> int:
         raise InputError("--video needs a single input (use `irdetect video` per result)")
     if args.threads is not None and args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
-    processes = _processes(args.processes)
     if _is_batch(args):
-        if args.threads is not None or processes != "auto":
-            raise InputError("--threads and --processes are for a single input (a batch runs "
-                             "--jobs processes of one thread each)")
+        if args.threads is not None:
+            raise InputError("--threads is for a single input (a batch runs --jobs processes "
+                             "of one thread each)")
         return run_batch(args, config)
     from irdetect.pipeline import process_file
 
@@ -85,29 +79,13 @@ def run(args) -> int:
     output = args.output or output_name(args.input)  # in the current folder
     if args.video:
         check_video_path(args.video, args.force)       # fail before the long run
-    if processes != "auto" and processes > 1 and args.threads is None:
-        args.threads = 1                                # one thread per process
     summary = process_file(args.input, output, config, dataset=args.dataset, force=args.force,
-                           progress=args.progress, workers=args.threads or DEFAULT_THREADS,
-                           processes=processes)
+                           progress=args.progress, workers=args.threads or DEFAULT_THREADS)
     log.info("wrote %s: %d frames, %d detections, %d tracks in %.1f s", output,
              summary["frames"], summary["detections"], summary["tracks"], summary["seconds"])
     if args.video:
         render_after_process(args.input, output, args)
     return 0
-
-
-def _processes(value: str) -> int | str:
-    """``--processes``: "auto" or an integer >= 1."""
-    if value == "auto":
-        return value
-    try:
-        n = int(value)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise InputError(f"--processes must be auto or an integer >= 1, got {value}")
-    return n
 
 
 def _is_batch(args) -> bool:

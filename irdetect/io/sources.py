@@ -69,9 +69,6 @@ class FrameSource:
 
     #: frames per read that the storage favours (HDF5: the chunk length along time)
     block_frames: int = 1
-    #: frames can be read from anywhere at the cost of those frames (not a video, which
-    #: decodes from its start): ``process_file`` may then split it over processes
-    random_access: bool = True
 
     def read_into(self, start: int, stop: int, out: np.ndarray) -> None:
         """Read frames [start, stop) into ``out`` (shape (stop - start, H, W), the source's
@@ -272,8 +269,6 @@ class VideoSource(FrameSource):
 
     Decoding is sequential; reading frames in order (as ``windows`` does) costs one pass.
     """
-
-    random_access = False
 
     def __init__(self, path):
         self.path = os.fspath(path)
