@@ -443,7 +443,8 @@ def report(data: dict) -> str:
         "## How the front end streams (what these numbers rest on)",
         "",
         "- Frames are read in the stored dtype into one reused buffer of `history + length + "
-        "one HDF5 chunk` frames with `read_direct`, ahead in chunk-aligned blocks "
+        "one read-ahead block` frames with `read_direct` (the block: a compressed HDF5 "
+        "chunk, or at most 8 MB of plain chunks), ahead in chunk-aligned blocks "
         "(`irdetect.pipeline._Reader`); memory does not depend on the sequence length "
         "(`tests/test_memory.py`). Track initiation runs once over all confirmed detections "
         "at the end, so it is the one part that grows with the number of detections.",

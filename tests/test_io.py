@@ -129,3 +129,19 @@ def test_recording_folder_reads_its_frames_subfolder(tmp_path):
     (tmp_path / "truth.txt").write_text("1 1\n2 2\n3 3\n")
     with open_sequence(tmp_path) as src:
         np.testing.assert_array_equal(src[:], frames)
+
+
+def test_hdf5_read_ahead_is_a_chunk_only_when_compressed(tmp_path):
+    # a compressed chunk is read whole (it is decompressed once per piece read); plain
+    # chunks are read in pieces of at most PLAIN_BLOCK_BYTES, which bounds the streaming
+    # reader's buffer for large frames
+    from irdetect.io.sources import HDF5Source
+
+    frames = np.zeros((80, 512, 640), np.uint16)
+    for name, opts in (("plain.h5", {}), ("zip.h5", {"compression": "gzip"})):
+        with h5py.File(tmp_path / name, "w") as f:
+            f.create_dataset("frames", data=frames, chunks=(64, 512, 640), **opts)
+    with open_sequence(tmp_path / "plain.h5") as plain, open_sequence(tmp_path / "zip.h5") as z:
+        assert z.block_frames == 64
+        assert plain.block_frames == HDF5Source.PLAIN_BLOCK_BYTES // (512 * 640 * 2) == 12
+        np.testing.assert_array_equal(plain[70:80], z[70:80])

@@ -134,7 +134,7 @@ class HDF5Source(FrameSource):
             rate = self._file.attrs.get("frame_rate")
             self.frame_rate = None if rate is None else float(rate)
             self.truth = _read_truth(self._file, self.path)
-            self.block_frames = int(self._dset.chunks[0]) if self._dset.chunks else 1
+            self.block_frames = self._block_frames()
             self._dset[0, :1, :1]  # a truncated file fails here, not mid-run
         except InputError:
             self._file.close()
@@ -142,6 +142,22 @@ class HDF5Source(FrameSource):
         except (OSError, KeyError, ValueError) as exc:
             self._file.close()
             raise InputError(f"corrupt or truncated HDF5 file ({_short(exc)})", path) from None
+
+    #: plain (unfiltered) chunks: read ahead at most this many bytes
+    PLAIN_BLOCK_BYTES = 8 << 20
+
+    def _block_frames(self) -> int:
+        """Filtered (compressed) chunks are best read whole (a chunk read in pieces is
+        decompressed once per piece); plain chunks can be read in any slice, so a read
+        of a few MB is enough (a 64-frame chunk of 640x512 uint16 frames is 42 MB of
+        read-ahead buffer otherwise)."""
+        chunks = self._dset.chunks
+        if not chunks:
+            return 1
+        if self._dset.id.get_create_plist().get_nfilters():
+            return int(chunks[0])
+        frame_bytes = self.shape[1] * self.shape[2] * self.dtype.itemsize
+        return max(1, min(int(chunks[0]), self.PLAIN_BLOCK_BYTES // frame_bytes))
 
     def _find_dataset(self, name):
         if name is not None:
