@@ -51,6 +51,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from irdetect.combine import window_starts
 from irdetect.config import ProcessConfig, load_config
 from irdetect.io import open_sequence, read_point_annotations
 from irdetect.metrics.detection import score_detections
@@ -247,13 +248,21 @@ def picture(name: str, t: int, centre=None) -> Path:
     """Side by side at 2x: frame t (1-99.8 % stretch) and its residual under the default
     suppressor, 128 x 128 px around the truth (or ``centre`` (x, y)); green circle =
     truth, red = confirmed detections of t's window."""
-    from irdetect.suppress import past_frames, suppress
+    from irdetect.suppress import future_frames, past_frames, suppress
 
     frames, truth = load(REAL / name)
     cfg = ProcessConfig()
     sup = {k: getattr(cfg.suppress, k) for k in cfg.suppress.__dataclass_fields__}
     keep = past_frames(**sup)
-    res = suppress(frames[t:t + 1], previous=frames[max(0, t - keep):t], **sup)[0]
+    # t's whole window, as the pipeline suppresses it (``auto`` decides per window; the
+    # first frames look ahead, ``suppress.lead_in``)
+    length = cfg.combine.length
+    s = max(int(a) for a in window_starts(len(frames), length=length, step=cfg.combine.step)
+            if a <= t)
+    ahead = future_frames(start=s, stop=s + length, **sup)
+    res = suppress(frames[s:s + length], previous=frames[max(0, s - keep):s],
+                   following=frames[s + length:s + length + ahead] if ahead else None,
+                   **sup)[t - s]
     det = detect_sequence(frames, cfg)["detections"]
     det = det[(det["frame_start"] <= t) & (det["frame_end"] >= t)]
 
