@@ -330,6 +330,10 @@ def local_significance(evidence: Evidence, c: np.ndarray, v: np.ndarray,
 #: (temporaries bounded by the evidence the pipeline holds anyway), within these limits
 CHUNK = 1 << 13
 CHUNK_MAX = 1 << 18
+#: rows of the tall image of one ``cv2.remap`` call at most (frames of more rows: one
+#: each); cv2.remap itself takes images and maps of fewer than SHRT_MAX rows
+TALL_ROWS = 8192
+_SHRT_MAX = 32767
 
 
 def _budget(blocks) -> int:
@@ -381,11 +385,6 @@ def _sample_sum(blocks, dts, cc, vv, bilinear):
             _remap_sums(sub, dt, x0, y0, vx, vy, inter, budget, total)
         first += m
     return total
-
-
-_SHRT_MAX = 32767
-#: rows of the tall image of one ``cv2.remap`` call at most (frames of more rows: one each)
-TALL_ROWS = 8192
 
 
 def _remap_sums(block, dt, x0, y0, vx, vy, inter, budget, total):
@@ -556,7 +555,7 @@ def correlate(points1, points2, points3, step: int, evidence: Evidence | None = 
 
 
 def _verified(pts, scores, index, step, evidence, verify, resolve, tolerance,
-              verify_local=0.0, screen=0.4) -> Correlation:
+              verify_local, screen) -> Correlation:
     points = (np.stack([pts[i][index[:, i]] for i in range(3)], axis=1) if len(index)
               else np.zeros((0, 3, 2)))
     z, c, v = track_significance(evidence, points, screen=screen * verify)
