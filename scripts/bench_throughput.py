@@ -314,10 +314,11 @@ def report(data: dict) -> str:
         f"{cores} cores ({data['machine']}), Python {data['versions'][0]}, "
         f"numpy {data['versions'][1]}, OpenCV {data['versions'][2]}.",
         f"Load average before / after: {load0:.1f} / {load1:.1f} on {cores} "
-        "cores" + (" -- other sessions were loading the machine while this ran, so wall-clock "
-                   "rates (and what a second thread gives) are below what an idle machine "
-                   "gives; the CPU-time rates (frames per CPU-second of the process) are the "
-                   "steadier figure." if max(load0, load1) > 0.5 * (cores or 1) else "."),
+        "cores (the one-minute figure after includes this benchmark's own runs)"
+        + (" -- other jobs were loading the machine when this started, so wall-clock "
+           "rates (and what a second thread gives) are below what an idle machine "
+           "gives; the CPU-time rates (frames per CPU-second of the process) are the "
+           "steadier figure." if load0 > 0.5 * (cores or 1) else "."),
         "",
         f"Inputs: simulated uint16 HDF5 sequences of {n} frames (64-frame chunks, "
         "uncompressed, in the page cache), 5 targets at SNR 4 (noise sigma 20 grey levels "
