@@ -313,6 +313,23 @@ def detect_sequence(frames, config: ProcessConfig | None = None, *,
     return out
 
 
+def check_config(config: ProcessConfig, path=None) -> None:
+    """Check every stage's parameters before a run: the stages' own checks, on blank
+    frames (``detect_sequence`` over 3 combined frames of 32 x 32 zeros, a few ms).
+
+    Raises
+    ------
+    InputError
+        A parameter a stage refuses (out of range, unknown choice), naming ``path`` (the
+        configuration file): otherwise the stage would raise mid-run, after minutes.
+    """
+    blank = np.zeros((min_frames(config), 32, 32), np.float32)
+    try:
+        detect_sequence(blank, config)
+    except ValueError as exc:
+        raise InputError(f"bad configuration value: {exc}", path) from None
+
+
 def initiate_tracks(detections: np.ndarray, config: ProcessConfig) -> np.ndarray:
     """Tracks from the confirmed detections (``irdetect.initiate``), TRACK table."""
     from irdetect.initiate import initiate_detections

@@ -61,6 +61,10 @@ def _bad_inputs(tmp):
     cv2.imwrite(str(tmp / "mixed" / "2.png"), np.zeros((9, 8), np.uint8))
     (tmp / "ann.txt").write_text("1 2\n3 4\n")
     (tmp / "cfg.toml").write_text("[combine]\nlenght = 12\n")
+    # values the stages refuse (checked before the run: each failed mid-run before)
+    (tmp / "range.toml").write_text("[correlate]\nscreen = 2.0\n")
+    (tmp / "range2.toml").write_text("[detect]\nk = -1.0\n")
+    (tmp / "range3.toml").write_text("[initiate]\nq1 = 3.0\n")
     return {
         "missing file": ["info", "nope.h5"],
         "not hdf5": ["info", "notes.h5"],
@@ -75,6 +79,12 @@ def _bad_inputs(tmp):
         "mixed sizes": ["convert", "mixed", "-o", "o3.h5"],
         "annotation count": ["convert", "good.h5", "-o", "o4.h5", "--truth", "ann.txt"],
         "unknown config key": ["process", "good.h5", "--config", "cfg.toml", "-o", "o5.h5"],
+        "config value out of range": ["process", "good.h5", "--config", "range.toml",
+                                      "-o", "o8.h5"],
+        "config value out of range 2": ["process", "good.h5", "--config", "range2.toml",
+                                        "-o", "o9.h5"],
+        "config value out of range 3": ["process", "good.h5", "--config", "range3.toml",
+                                        "-o", "o10.h5"],
         "missing output folder": ["convert", "good.h5", "-o", "nowhere/o6.h5"],
         "output exists": ["convert", "good.h5", "-o", "good.h5"],
         "unknown scenario": ["simulate", "o7.h5", "--scenario", "mars"],
@@ -98,6 +108,8 @@ def test_messages_name_the_problem_and_the_file(cli, tmp_path):
     cases = _bad_inputs(tmp_path)
     expect = {"annotation count": ("2 annotation lines for 4 frames", "ann.txt"),
               "unknown config key": ("combine.lenght", "cfg.toml"),
+              "config value out of range": ("screen must be", "range.toml"),
+              "config value out of range 3": ("q1 must", "range3.toml"),
               "0 frames": ("0 frames", "zero.h5"),
               "mixed sizes": ("mixed sizes", "mixed"),
               "NaN values": ("NaN", "nan.npy"),

@@ -63,7 +63,10 @@ def add_arguments(p):
 
 
 def run(args) -> int:
+    from irdetect.pipeline import check_config, process_file
+
     config = load_profile(args.profile, args.config)
+    check_config(config, args.config)         # a bad value fails now, not mid-run
     if args.video and _is_batch(args):
         raise InputError("--video needs a single input (use `irdetect video` per result)")
     if args.threads is not None and args.threads < 1:
@@ -73,8 +76,6 @@ def run(args) -> int:
             raise InputError("--threads is for a single input (a batch runs --jobs processes "
                              "of one thread each)")
         return run_batch(args, config)
-    from irdetect.pipeline import process_file
-
     args.input = args.inputs[0]
     output = args.output or output_name(args.input)  # in the current folder
     if args.video:
