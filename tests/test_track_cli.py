@@ -48,6 +48,12 @@ def test_user_errors_exit_2_without_partial_output(tmp_path, capsys):
     write_sequence(seq, np.zeros((2, 20, 20), np.uint8))
     assert main(["track", str(seq), "-o", str(out), "--config", str(bad)]) == 2
     assert "track.gate must be float" in capsys.readouterr().err and not out.exists()
+    # a value the tracker refuses fails before the run, as one line naming the file
+    bad.write_text("[track]\nk = -3.0\n")
+    assert main(["track", str(seq), "-o", str(out), "--config", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "k must be > 0" in err and "bad.toml" in err and "Traceback" not in err
+    assert not out.exists()
 
 
 def test_evaluate_scores_track_points(harbour_file, tmp_path, capsys):
