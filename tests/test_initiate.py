@@ -188,3 +188,20 @@ def test_a_long_sequence_gives_one_track_per_target_in_sliding_windows():
                                         pytest.approx(vy / 12, abs=0.01))
     with pytest.raises(ValueError, match="window"):
         initiate_detections(det, window=1)
+
+
+def test_fit_chi2_from_sums_matches_the_fit():
+    # merge_windows tests every earlier group at once from summed moments; they must
+    # give fit_constant_velocity's residual (n rms^2), also for points of one time only
+    from irdetect.initiate import _fit_chi2
+
+    rng = np.random.default_rng(7)
+    rows, want = [], []
+    for n, spread in ((2, 24), (5, 0), (12, 60), (30, 240)):
+        t = 5000 + rng.integers(0, spread + 1, n).astype(float)
+        x = 300 + 0.7 * t / 100 + rng.normal(0, 1.5, n)
+        y = 20 - 0.2 * t / 100 + rng.normal(0, 1.5, n)
+        rows.append([n, t.sum(), (t * t).sum(), x.sum(), (x * t).sum(), (x * x).sum(),
+                     y.sum(), (y * t).sum(), (y * y).sum()])
+        want.append(n * fit_constant_velocity(x, y, t)[4] ** 2)
+    np.testing.assert_allclose(_fit_chi2(np.array(rows)), want, rtol=1e-6, atol=1e-6)
