@@ -276,9 +276,9 @@ def merge_windows(found, x, y, t, scan, *, sigma: float, fit_confidence: float):
     -----
     Each track is tested against every earlier group at once: a group keeps the sums a
     least-squares fit needs (``_fit_chi2``), and the union's are the two sums less those
-    of the measurements both hold (overlapping windows share detections). With 6,788
-    detections (1,574 tracks; a loose configuration) this took 1 s instead of 32 s of
-    pairwise fits, with the same tracks.
+    of the measurements both hold (overlapping windows share detections): no pairwise
+    fits, whose count grows with the square of the tracks (a loose configuration's
+    thousands of detections: docs/results/verification.md, section 2).
     """
     from scipy.special import chdtri
 
@@ -301,11 +301,10 @@ def merge_windows(found, x, y, t, scan, *, sigma: float, fit_confidence: float):
             for g in owners.get(int(j), ()):
                 shared[g] += point[j]
         both = sums[:k] + point[mu].sum(axis=0) - shared
-        near = last[:k] >= scan[m].min() - 1   # overlapping or adjacent scans
-        ok = near & (_fit_chi2(both) / sigma ** 2
-                     <= chdtri(np.maximum(2 * both[:, 0] - 4, 1), 1 - fit_confidence))
-        if fit_confidence >= 1:
-            ok = near
+        ok = last[:k] >= scan[m].min() - 1     # overlapping or adjacent scans
+        if fit_confidence < 1:
+            ok &= (_fit_chi2(both) / sigma ** 2
+                   <= chdtri(np.maximum(2 * both[:, 0] - 4, 1), 1 - fit_confidence))
         hit = np.flatnonzero(ok)
         if len(hit):
             g = int(hit[0])                     # the first earlier track that fits
@@ -345,16 +344,14 @@ def _fit_chi2(sums: np.ndarray) -> np.ndarray:
     n, st, stt = sums[:, 0], sums[:, 1], sums[:, 2]
     n = np.maximum(n, 1)
     var_t = stt - st * st / n
+    # one time only (var_t 0 up to rounding): velocity 0, the spread about the mean
+    timed = var_t > 1e-12 * np.maximum(stt, 1.0)
+    var_t = np.where(timed, var_t, 1.0)
     out = np.zeros(len(sums))
     for sx, sxt, sxx in ((sums[:, 3], sums[:, 4], sums[:, 5]),
                          (sums[:, 6], sums[:, 7], sums[:, 8])):
-        cov = sxt - sx * st / n
-        ss = sxx - sx * sx / n
-        # one time only (var_t 0 up to rounding): velocity 0, the spread about the mean
-        timed = var_t > 1e-12 * np.maximum(stt, 1.0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ss = ss - np.where(timed, cov * cov / var_t, 0.0)
-        out += ss
+        cov = np.where(timed, sxt - sx * st / n, 0.0)
+        out += sxx - sx * sx / n - cov * cov / var_t
     return np.maximum(out, 0.0)
 
 

@@ -33,7 +33,7 @@ from irdetect.config import ProcessConfig, to_json
 from irdetect.correlate import (DP_LEADS, Evidence, correlate, matched_frame, noise_level,
                                 standardise)
 from irdetect.detect import detect
-from irdetect.errors import InputError
+from irdetect.errors import InputError, refused_settings
 from irdetect.fuse import fuse
 from irdetect.suppress import future_frames, past_frames, suppress
 
@@ -323,11 +323,8 @@ def check_config(config: ProcessConfig, path=None) -> None:
         A parameter a stage refuses (out of range, unknown choice), naming ``path`` (the
         configuration file): otherwise the stage would raise mid-run, after minutes.
     """
-    blank = np.zeros((min_frames(config), 32, 32), np.float32)
-    try:
-        detect_sequence(blank, config)
-    except ValueError as exc:
-        raise InputError(f"bad configuration value: {exc}", path) from None
+    with refused_settings(path):
+        detect_sequence(np.zeros((min_frames(config), 32, 32), np.float32), config)
 
 
 def initiate_tracks(detections: np.ndarray, config: ProcessConfig) -> np.ndarray:

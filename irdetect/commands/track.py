@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from irdetect.config import load_config, to_json
-from irdetect.errors import InputError
+from irdetect.errors import refused_settings
 from irdetect.io import ResultsWriter, check_output_path, open_sequence
 
 log = logging.getLogger(__name__)
@@ -45,10 +45,8 @@ def run(args) -> int:
     output = Path(args.output or f"{path.name if path.is_dir() else path.stem}.track.h5")
     check_output_path(output, args.force)
     params = {k: getattr(config.track, k) for k in config.track.__dataclass_fields__}
-    try:       # the tracker's own parameter checks on 3 blank frames: fail now, not mid-run
+    with refused_settings(args.config):     # the tracker's own checks, on blank frames
         track(np.zeros((3, 32, 32), np.float32), lambda rows: None, False, **params)
-    except ValueError as exc:
-        raise InputError(f"bad configuration value: {exc}", args.config) from None
     with open_sequence(args.input, dataset=args.dataset) as source, \
             ResultsWriter(output, force=args.force, attrs={
                 "config": to_json(config), "input": path.name,
