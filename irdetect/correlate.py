@@ -466,9 +466,9 @@ def correlate(points1, points2, points3, step: int, evidence: Evidence | None = 
         <= 1): chains whose coarse statistic (the first, nearest-pixel search stage of
         ``track_significance``) is under ``screen`` x ``verify`` are not refined and
         fail. 0.4 (0.5 before: it lost daub-data14's first window, whose target's
-        coarse value is 2.98 = 0.46 ``verify`` against a refined 24.8). The share of
-        chains refined grows fast below it: 5 % at 0.5, 20 % at 0.4, 81 % at 0.25 on
-        the throughput sequence (docs/detection.md).
+        coarse value lies between 0.4 and 0.5 ``verify``, its refined one at 24.8). The
+        share of chains refined, and the time, grow fast below it
+        (docs/results/verification.md, ``scripts/bench_verification.py``).
     resolve : {"cost", "unique", "all"}
         What to do when a point lies on several segments. ``all``: keep every segment
         (the literal set-valued eqs. 5-7). ``unique``: the paper's reading that

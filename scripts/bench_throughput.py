@@ -461,12 +461,11 @@ def report(data: dict) -> str:
         "block (the block as one tall image), instead of numpy gathers.",
         "- Measured and not adopted: splitting a long sequence into ranges run on 2 "
         "processes (each range computing the 2 windows on either side of it: identical "
-        "tables). On 4,800 frames of 256x256 (repeated runs), 2 processes took 7.3-9.0 s "
-        "for the default and 3.5-3.8 s for `fast`, 2 threads 7.7-9.4 s and 2.8-3.5 s, 1 "
-        "thread 11.1-12.0 s and 3.5-4.1 s: the per-frame stages make several passes over "
-        "every frame and "
-        "share the memory bandwidth (a compute-bound loop runs at full speed on both cores "
-        "at once), and a started process costs about 0.5 s of imports.",
+        "tables) gave no speed over 2 threads in repeated runs on 4,800 frames of 256x256 "
+        "(the code and its numbers: commits df8276a and d43839f): the per-frame stages make "
+        "several passes over every frame and "
+        "share the memory bandwidth, and a started process pays the interpreter's start-up "
+        "again (the difference of the wall and in-run columns above).",
         "- Exact rewrites (bit-identical tables): tile medians by one numpy sort instead of "
         "`np.median`'s partition, fusion by flat candidate indices, no finite check on "
         "integer frames, no per-window concatenations, `auto`'s motion check on the 3 "
