@@ -75,20 +75,6 @@ def run_file(seq: Path, out: Path, config: ProcessConfig) -> dict:
     return {**r, "wall": time.perf_counter() - t0, "timings": timings}
 
 
-def real_totals(config: ProcessConfig, data: dict) -> dict:
-    detected = targets = false = goal = 0
-    for name, (frames, truth) in data.items():
-        if not name.startswith("daub"):
-            continue
-        r = bench_real.run_irdetect(frames, truth, bench_real.gate_of(name), config)
-        detected += r["win_detected"]
-        targets += r["win_targets"]
-        n_false = round(r["win_false"] * r["win_targets"])
-        false += n_false
-        goal += r["win_pd"] >= 0.9 and r["win_false"] <= 0.1 and r["tracks_false"] == 0
-    return {"detected": detected, "targets": targets, "false": false, "goal": goal}
-
-
 def simulator(config: ProcessConfig, seeds: int) -> list[dict]:
     return [bench_detection.run_scene(bench_detection.full_pipeline, scenario, snr,
                                       list(range(first, first + seeds)), config)
@@ -102,10 +88,10 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=str(ROOT / "docs" / "results" / "verification.md"))
     args = ap.parse_args(argv)
     t_all = time.perf_counter()
-    real = {}
+    daub = {}
     if bench_real.REAL.is_dir():
-        real = {p.name: bench_real.load(p) for p in sorted(bench_real.REAL.iterdir())
-                if (p / "frames").is_dir()}
+        daub = {p.name: bench_real.load(p) for p in sorted(bench_real.REAL.iterdir())
+                if p.name.startswith("daub") and (p / "frames").is_dir()}
     screen_rows, path_rows = [], []
     with tempfile.TemporaryDirectory() as tmp:
         seq, out = Path(tmp) / "seq.h5", Path(tmp) / "out.h5"
@@ -116,7 +102,7 @@ def main(argv=None) -> int:
                 run = run_file(seq, out, cfg)
             screen_rows.append((screen, count.refined / max(count.chains, 1),
                                 run["timings"]["correlate"],
-                                real_totals(cfg, real) if real else None,
+                                bench_real.totals(daub, cfg) if daub else None,
                                 simulator(cfg, args.seeds)))
             print(f"screen {screen}: {count.refined}/{count.chains} refined", flush=True)
         loose = bench_real.with_changes(ProcessConfig(), {"correlate": {"verify": 0.0}})
