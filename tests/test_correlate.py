@@ -115,6 +115,27 @@ def test_verification_keeps_a_faint_target_and_rejects_a_noise_chain(seed):
     assert len(correlate(*pts, step=12, evidence=ev, verify=0.0, min_score=0).segments) == 2
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_verification_climbs_to_the_track_from_a_poor_fit(seed):
+    # 3 points whose line is 1.6 px and 0.13 px/frame off the target's track (at the
+    # ends of 36 frames: 2.3 px more): the hill climb reaches the track; one 3 x 3 x 3 x 3 grid
+    # per step (the earlier search) reached 0.075 px/frame
+    from irdetect.correlate import _sample_sum, track_significance
+
+    ev, track = _faint_target_evidence(seed, snr=3.0)
+    tm = float(np.mean(ev.index))
+    err_c, err_v = np.array([1.3, -0.9]), np.array([0.1, -0.08])
+    pts = np.stack([track[int(t)] + err_c + err_v * (t - tm) for t in ev.times])[None]
+    z, c, v = track_significance(ev, pts)
+    true_c, true_v = track[0] + np.array([0.8, -0.6]) * tm, np.array([0.8, -0.6])
+    assert np.hypot(*(v[0] - true_v)) < 0.03
+    assert np.hypot(*(c[0] - true_c)) < 0.4
+    frames = [np.stack(ev.frames)]
+    dts = (np.asarray(ev.index) - tm).astype(np.float32)
+    at_truth = _sample_sum(frames, dts, true_c[None, None], true_v[None, None], True)[0, 0]
+    assert z[0] >= 0.95 * at_truth / (ev.sigma * np.sqrt(36))
+
+
 def test_verification_significance_of_pure_noise_stays_low():
     from irdetect.correlate import track_significance
 
