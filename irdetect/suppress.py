@@ -420,9 +420,9 @@ def _temporal(stack: np.ndarray, history: int, size: int, past: np.ndarray | Non
     out = np.empty_like(stack)
     # running sum of the previous `history` frames: one add and one subtract per frame
     # (float32 is enough: the sum restarts from the frames themselves in every call)
-    lo = max(0, n_past - history)
-    total = (past[lo:n_past].sum(axis=0, dtype=np.float32) if n_past
-             else np.zeros(stack.shape[1:], np.float32))
+    total = np.zeros(stack.shape[1:], np.float32)
+    for i in range(max(0, n_past - history), n_past):
+        _accumulate(past[i], total)
     for t in range(len(stack)):
         i = n_past + t
         count = i - max(0, i - history)
@@ -435,10 +435,19 @@ def _temporal(stack: np.ndarray, history: int, size: int, past: np.ndarray | Non
             out[t] = stack[t] - cv2.blur(stack[t], (size, size), borderType=cv2.BORDER_REFLECT)
         else:
             cv2.scaleAdd(total, -1.0 / count, stack[t], dst=out[t])
-        total += full(i)
+        _accumulate(full(i), total)
         if i - history >= 0:
             total -= full(i - history)
     return out
+
+
+def _accumulate(frame: np.ndarray, total: np.ndarray) -> None:
+    """total += frame (float32 (H, W)); ``cv2.accumulate`` converts uint8 / uint16 /
+    float32 frames on the fly, in one pass (numpy's mixed-type add buffers a cast)."""
+    if frame.dtype in (np.uint8, np.uint16, np.float32):
+        cv2.accumulate(frame, total)
+    else:
+        np.add(total, frame, out=total)
 
 
 #: phase-correlation peaks weaker than this (or than 60 / sqrt(H W), what pure noise
