@@ -409,6 +409,23 @@ def report(data: dict) -> str:
                                                          for k, v in top)
                          + f" of the {total:.1f} s in stages ({1e3 * total / n:.2f} ms per "
                          "frame).")
+    lines += ["", "## What the goal leaves per frame", ""]
+    for name, floor, cli in rows:
+        key = next((k for k in GOAL_FPS if f"{k[1]}x{k[0]}" == name), None)
+        one = {label: st["timings"] for nm, label, workers, st in stage_rows
+               if nm == name and workers == 1}
+        if key is None or "default (auto)" not in one or "fast" not in one:
+            continue
+        budget = min(1.0 / GOAL_FPS[key], 5.0 * floor["wall"] / n)
+        per = {label: {k: 1e3 * v / n for k, v in t.items()} for label, t in one.items()}
+        lines.append(
+            f"- {name}: {GOAL_FPS[key]:,} fps within 5x of this run's floor leaves "
+            f"{1e3 * budget:.2f} ms per frame ({2e3 * budget:.2f} ms of CPU on 2 cores). "
+            f"On one worker the stages take {sum(per['default (auto)'].values()):.2f} ms "
+            f"(default) and {sum(per['fast'].values()):.2f} ms (fast) per frame; "
+            f"suppression alone {per['fast']['suppress']:.2f} ms, the combination "
+            f"{per['fast']['combine']:.2f} ms (fast), the correlation with its "
+            f"verification {per['default (auto)']['correlate']:.2f} ms (default).")
     lines += ["", "## Goals (issue 9, 2 cores)", ""]
     for name, floor, cli in rows:
         key = next((k for k in GOAL_FPS if f"{k[1]}x{k[0]}" == name), None)
@@ -458,7 +475,9 @@ def report(data: dict) -> str:
         "copy of a window's raw frames and its temporaries, so a second thread costs memory "
         "(see the RSS column).",
         "- The verification samples its track sums with `cv2.remap`, one call per window "
-        "block (the block as one tall image), instead of numpy gathers.",
+        "block (the block as one tall image), instead of numpy gathers; its refinement "
+        "is a hill climb (at most 108 hypotheses per chain; the earlier joint grid "
+        "sampled 162 and reached less far: docs/detection.md).",
         "- Measured and not adopted: splitting a long sequence into ranges run on 2 "
         "processes (each range computing the 2 windows on either side of it: identical "
         "tables) gave no speed over 2 threads in repeated runs on 4,800 frames of 256x256 "
@@ -473,7 +492,8 @@ def report(data: dict) -> str:
         "verification's sampling in float32 with fewer temporaries and larger chunks, the "
         "3 windows' matched frames sampled in place (no stacked copy per triple), the "
         "residuals turned into the matched frames in place, the detector's winning "
-        "direction by arithmetic instead of masked stores.",
+        "direction by arithmetic instead of masked stores, the temporal background's "
+        "running sum by `cv2.accumulate` (convert and add in one pass).",
         "",
     ]
     return "\n".join(lines)

@@ -54,6 +54,18 @@ def test_temporal_streams_like_one_block():
     np.testing.assert_allclose(second, whole[12:], atol=1e-4)
 
 
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.int16, np.int32, np.float64])
+def test_temporal_background_is_the_mean_of_the_past_frames(dtype):
+    # the running sum takes uint8 / uint16 / float32 by cv2.accumulate, others by numpy:
+    # every stored dtype gives the frame minus the mean of its `history` past frames
+    rng = np.random.default_rng(6)
+    raw = rng.integers(0, 250, (20, 9, 11)).astype(dtype)
+    res = suppress(raw[8:], previous=raw[:8], method="temporal", history=5)
+    f = raw.astype(np.float64)
+    want = np.stack([f[t] - f[t - 5:t].mean(axis=0) for t in range(8, 20)])
+    np.testing.assert_allclose(res, want, atol=1e-3)
+
+
 def test_noise_sigma_is_robust():
     rng = np.random.default_rng(2)
     r = rng.normal(0, 3.0, (200, 200)).astype(np.float32)
