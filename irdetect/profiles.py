@@ -11,8 +11,8 @@ docs/results/throughput.md and docs/results/profiles.md):
 ``fast``
     The same suppression (``auto``) and ``dp`` merit without the verification: a higher
     first threshold (k 3.5, one robust sigma per frame measured on a 4-px grid) and the
-    earlier score test. About twice the default's frames per CPU-second (measured 1.8-2.3
-    times; more with ``[suppress] method = "temporal"`` for a camera known to hold
+    earlier score test. 2-3x the default's frames per CPU-second (measured 1.8x at
+    320x240 to 3.4x at 640x512, docs/results/throughput.md; more with ``[suppress] method = "temporal"`` for a camera known to hold
     still); for targets of SNR 3 and up (at SNR 2 it finds about half the targets the
     default finds).
 ``paper``

@@ -134,7 +134,7 @@ def report(data: dict, seeds, profiles, load) -> str:
         "camera (`auto` switches to the registered suppressor) and for textured real "
         "backgrounds (the verification and its local test remove most clutter chains).",
         "- `fast`: targets of SNR 3 and up, still or moving camera (the same `auto` "
-        "suppression as the default); about twice the default's frames per CPU-second "
+        "suppression as the default); 2-3x the default's frames per CPU-second "
         "(docs/results/throughput.md). Without the verification it finds about half the "
         "SNR-2 targets the default finds, and its chains are not checked against the "
         "frames (somewhat more false detections). For a camera known to hold "

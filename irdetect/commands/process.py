@@ -48,7 +48,7 @@ def add_arguments(p):
                    "with --profile, applied on top of the profile")
     p.add_argument("--profile", default="default", metavar="NAME",
                    help=f"named configuration: {', '.join(profile_names())} (default: "
-                   "default; `fast`: no matched-filter verification, about 2x the frames "
+                   "default; `fast`: no matched-filter verification, 2-3x the frames "
                    "per CPU-second, for targets of SNR >= 3; docs/cli.md)")
     p.add_argument("--threads", type=int, metavar="N",
                    help=f"single input: threads over windows (default {DEFAULT_THREADS}: the "
