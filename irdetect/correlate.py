@@ -93,16 +93,18 @@ class Evidence:
     leads: tuple = (0.0,)
 
 
-def _frame_blocks(evidence: Evidence) -> tuple[list, int]:
+def _frame_blocks(evidence: Evidence) -> tuple[list, np.ndarray]:
     """The evidence frames as C-contiguous float32 blocks (F_j, H, W) (the pipeline's
-    blocks in place where they are float32 already), and F = sum F_j."""
+    blocks in place where they are float32 already), and each frame's time relative to
+    the evidence's middle frame, float32 (F,)."""
     frames = evidence.frames
     if isinstance(frames, np.ndarray):
         frames = [frames]
     elif len(frames) and np.ndim(frames[0]) == 2:
         frames = [np.stack(frames)]
     blocks = [np.ascontiguousarray(b, dtype=np.float32) for b in frames]
-    return blocks, sum(len(b) for b in blocks)
+    t = np.asarray(evidence.index, np.float64)
+    return blocks, (t - t.mean()).astype(np.float32)
 
 
 #: the ``dp`` merit's fused point trails its target: the merit of the path's recent
@@ -218,10 +220,9 @@ def track_significance(evidence: Evidence, points: np.ndarray, screen: float = -
     p = np.asarray(points, np.float64).reshape(-1, 3, 2)
     if len(p) == 0:
         return np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2))
-    frames, n_f = _frame_blocks(evidence)
-    t = np.asarray(evidence.index, np.float64)
-    tm = float(t.mean())
-    dts = (t - tm).astype(np.float32)
+    frames, dts = _frame_blocks(evidence)
+    n_f = len(dts)
+    tm = float(np.mean(evidence.index))
     times = np.asarray(evidence.times, np.float64)
     tt = times - times.mean()
     v = (tt[None, :, None] * (p - p.mean(1, keepdims=True))).sum(1) / (tt ** 2).sum()
@@ -298,11 +299,9 @@ def ring_significance(evidence: Evidence, c: np.ndarray, v: np.ndarray) -> np.nd
 def _parallel_sums(evidence: Evidence, c, v, offsets):
     """Track sums (n, R) float32 of the tracks c + offsets[r], velocity v (offsets (R, 2)
     px), bilinear, and the number of frames F they sum over."""
-    frames, n_f = _frame_blocks(evidence)
-    t = np.asarray(evidence.index, np.float64)
-    dts = (t - t.mean()).astype(np.float32)
+    frames, dts = _frame_blocks(evidence)
     cc = c[:, None, :] + offsets[None]
-    return _sample_sum(frames, dts, cc, v[:, None, :], bilinear=True), n_f
+    return _sample_sum(frames, dts, cc, v[:, None, :], bilinear=True), len(dts)
 
 
 #: the local test of a verified track (``local_significance``): parallel tracks at these

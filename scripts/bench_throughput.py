@@ -221,6 +221,11 @@ def trackpy_rate(path: Path, n_frames: int) -> dict | None:
 
 # --- report -----------------------------------------------------------------------------
 
+def _goal_fps(name: str) -> int | None:
+    """Issue 9's frames/s goal for a frame size named "WxH", None for the others."""
+    return next((goal for (h, w), goal in GOAL_FPS.items() if name == f"{w}x{h}"), None)
+
+
 def fps(n: int, seconds: float) -> str:
     return f"{n / seconds:,.0f}" if seconds > 0 and np.isfinite(seconds) else "-"
 
@@ -411,16 +416,17 @@ def report(data: dict) -> str:
                          "frame).")
     lines += ["", "## What the goal leaves per frame", ""]
     for name, floor, cli in rows:
-        key = next((k for k in GOAL_FPS if f"{k[1]}x{k[0]}" == name), None)
+        goal = _goal_fps(name)
         one = {label: st["timings"] for nm, label, workers, st in stage_rows
                if nm == name and workers == 1}
-        if key is None or "default (auto)" not in one or "fast" not in one:
+        if goal is None or "default (auto)" not in one or "fast" not in one:
             continue
-        budget = min(1.0 / GOAL_FPS[key], 5.0 * floor["wall"] / n)
+        budget = min(1.0 / goal, 5.0 * floor["wall"] / n)
         per = {label: {k: 1e3 * v / n for k, v in t.items()} for label, t in one.items()}
         lines.append(
-            f"- {name}: {GOAL_FPS[key]:,} fps within 5x of this run's floor leaves "
-            f"{1e3 * budget:.2f} ms per frame ({2e3 * budget:.2f} ms of CPU on 2 cores). "
+            f"- {name}: {goal:,} fps within 5x of this run's floor leaves "
+            f"{1e3 * budget:.2f} ms per frame ({1e3 * cores * budget:.2f} ms of CPU on "
+            f"{cores} cores). "
             f"On one worker the stages take {sum(per['default (auto)'].values()):.2f} ms "
             f"(default) and {sum(per['fast'].values()):.2f} ms (fast) per frame; "
             f"suppression alone {per['fast']['suppress']:.2f} ms, the combination "
@@ -428,18 +434,18 @@ def report(data: dict) -> str:
             f"verification {per['default (auto)']['correlate']:.2f} ms (default).")
     lines += ["", "## Goals (issue 9, 2 cores)", ""]
     for name, floor, cli in rows:
-        key = next((k for k in GOAL_FPS if f"{k[1]}x{k[0]}" == name), None)
-        if key is None:
+        goal = _goal_fps(name)
+        if goal is None:
             continue
         for label in ("default", "--profile fast"):
             r = cli[label]
             got = n / r["run"]
             ratio = (n / floor["wall"]) / got
-            lines.append(f"- {name} `{label}`: goal >= {GOAL_FPS[key]:,} fps end to end "
+            lines.append(f"- {name} `{label}`: goal >= {goal:,} fps end to end "
                          f"within 5x of the floor; measured {got:,.0f} fps in-run "
                          f"({fps(n, r['wall'])} with start-up, {fps(n, r['cpu'])} per "
                          f"CPU-second), {ratio:.1f}x the floor -> "
-                         f"{'reached' if got >= GOAL_FPS[key] and ratio <= 5 else 'not reached'}.")
+                         f"{'reached' if got >= goal and ratio <= 5 else 'not reached'}.")
     speedups = [(name, (n / cli[label]["run"]) / (tp["frames"] / tp["wall"]))
                 for name, tp, cli in peer_rows if tp is not None
                 for label in ("default", "--profile fast")]

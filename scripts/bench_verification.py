@@ -47,25 +47,32 @@ SCENES = (("wan2008 SNR 2", "wan2008", 2.0, 0), ("wan2008 SNR 3", "wan2008", 3.0
 
 
 class RefineCounter:
-    """Wraps ``correlate.track_significance`` to count the chains it gets and those whose
-    coarse statistic passes the screen (the refined ones)."""
+    """Wraps ``correlate.track_significance`` to count the chains it gets, and its hill
+    climb (``correlate._climb``) to count those it refines (whose coarse statistic
+    passed the screen: the rows of any round)."""
 
     def __init__(self):
-        self.original = correlate_module.track_significance
+        self.originals = correlate_module.track_significance, correlate_module._climb
         self.chains = self.refined = 0
+        self._rows: set = set()
 
     def __call__(self, evidence, points, screen=-np.inf):
-        z, c, v = self.original(evidence, points, screen)
+        self._rows = set()
+        z, c, v = self.originals[0](evidence, points, screen)
         self.chains += len(z)
-        self.refined += int((z >= screen).sum())
+        self.refined += len(self._rows)
         return z, c, v
 
+    def _climb(self, frames, dts, rows, *args):
+        self._rows.update(rows.tolist())
+        return self.originals[1](frames, dts, rows, *args)
+
     def __enter__(self):
-        correlate_module.track_significance = self
+        correlate_module.track_significance, correlate_module._climb = self, self._climb
         return self
 
     def __exit__(self, *exc):
-        correlate_module.track_significance = self.original
+        correlate_module.track_significance, correlate_module._climb = self.originals
 
 
 def run_file(seq: Path, out: Path, config: ProcessConfig) -> dict:

@@ -54,7 +54,8 @@ def test_temporal_streams_like_one_block():
     np.testing.assert_allclose(second, whole[12:], atol=1e-4)
 
 
-@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.int16, np.int32, np.float64])
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32, np.int16, np.int32,
+                                   np.float64])
 def test_temporal_background_is_the_mean_of_the_past_frames(dtype):
     # the running sum takes uint8 / uint16 / float32 by cv2.accumulate, others by numpy:
     # every stored dtype gives the frame minus the mean of its `history` past frames
