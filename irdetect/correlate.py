@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from irdetect.suppress import median_mad_sigma
+from irdetect.robust import median_mad_sigma, tile_map, tile_samples
 from irdetect.tables import SEGMENT, empty
 
 RESOLVE = ("all", "unique", "cost")
@@ -149,14 +149,11 @@ def standardise(frames, tile: int = 32) -> list:
     if not frames:
         return frames
     h, w = frames[0].shape
-    ny, nx = max(1, h // tile), max(1, w // tile)
-    th, tw = h // ny, w // nx
-    sub = np.stack([np.asarray(f)[:ny * th:2, :nx * tw:2] for f in frames[::3]])
-    blocks = sub.reshape(len(sub), ny, sub.shape[1] // ny, nx, sub.shape[2] // nx)
-    blocks = blocks.transpose(1, 3, 0, 2, 4).reshape(ny, nx, -1)
-    sc = median_mad_sigma(blocks)[1]
+    # every 3rd frame, every 2nd pixel of each tile: (ny, nx, samples)
+    sub = tile_samples(np.stack([np.asarray(f) for f in frames[::3]]), tile, 2)
+    sc = median_mad_sigma(np.moveaxis(sub, 0, -2).reshape(*sub.shape[1:3], -1))[1]
     sc = np.maximum(sc, max(0.25 * float(np.median(sc)), float(np.finfo(np.float32).tiny)))
-    inv = cv2.resize((1.0 / sc).astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
+    inv = tile_map(1.0 / sc, h, w)
     for f in frames:
         np.multiply(f, inv, out=f)
     return frames

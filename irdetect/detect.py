@@ -14,7 +14,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from irdetect.suppress import DIRECTIONS, median_mad_sigma
+from irdetect.robust import median_mad_sigma, tile_map, tile_samples
+from irdetect.suppress import DIRECTIONS
 
 #: direction index -> angle of the paper's 4 hypothesised trajectories in degrees,
 #: atan2(dy, dx) in the (x, y) pixel frame (x = column, y = row pointing down: 45 degrees
@@ -211,13 +212,9 @@ def _location_scale(s: np.ndarray, sigma: str, tile: int, sample: int = 2):
         med, sc = median_mad_sigma(s[:, ::sample, ::sample].reshape(n_dir, -1))
         sc = np.maximum(sc, tiny)
         return [(np.float32(m), np.float32(c)) for m, c in zip(med, sc)]
-    ny, nx = max(1, h // tile), max(1, w // tile)
-    th, tw = h // ny, w // nx
     # every sample-th pixel in each direction: the median and MAD of a tile need no
     # more, and this is the stage's main cost
-    blocks = s[:, :ny * th, :nx * tw].reshape(n_dir, ny, th, nx, tw)[:, :, ::sample, :,
-                                                                     ::sample]
-    blocks = blocks.transpose(0, 1, 3, 2, 4).reshape(n_dir, ny, nx, -1)
+    blocks = tile_samples(s, tile, sample)
     med, sc = median_mad_sigma(blocks)
     out = []
     for d in range(n_dir):
@@ -225,9 +222,7 @@ def _location_scale(s: np.ndarray, sigma: str, tile: int, sample: int = 2):
         # floor each tile at a quarter of the median tile scale
         floor = max(0.25 * float(np.median(sc[d])), float(tiny))
         scd = np.maximum(sc[d], floor)
-        loc_map = cv2.resize(med[d].astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
-        sc_map = cv2.resize(scd.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
-        out.append((loc_map, sc_map))
+        out.append((tile_map(med[d], h, w), tile_map(scd, h, w)))
     return out
 
 

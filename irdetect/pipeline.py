@@ -13,6 +13,7 @@ over it and the next two combined frames has been searched.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import threading
@@ -44,10 +45,45 @@ N_CORRELATE = 3
 _TIMINGS_LOCK = threading.Lock()
 
 
+#: the shortest combined frame a short sequence is run with: 3 of them, 12 frames, is the
+#: shortest sequence ``irdetect process`` takes
+MIN_LENGTH = 4
+
+
 def min_frames(config: ProcessConfig | None = None) -> int:
-    """Frames needed for 3 combined frames under ``config`` (36 with the defaults)."""
+    """Frames needed for 3 combined frames of the configured length (36 with the
+    defaults); shorter sequences run with shorter combined frames (``fit_config``)."""
     c = (config or ProcessConfig()).combine
     return frames_needed(N_CORRELATE, length=c.length, step=c.step)
+
+
+def fit_config(config: ProcessConfig | None, n_frames: int) -> ProcessConfig:
+    """The configuration a sequence of ``n_frames`` frames runs with.
+
+    ``config`` itself when its 3 combined frames fit (``min_frames``). A shorter sequence
+    runs with the longest combined frames that fit, down to ``MIN_LENGTH`` frames: length
+    L' and step max(1, round(step L' / L)) scaled together (30 frames with the defaults:
+    3 combined frames of 10 frames).
+
+    Raises
+    ------
+    ValueError
+        Fewer frames than 3 combined frames of ``MIN_LENGTH`` frames need (or of the
+        configured length when it is shorter); the message says how many are needed.
+    """
+    config = config or ProcessConfig()
+    c = config.combine
+    if n_frames >= min_frames(config):
+        return config
+    for length in range(c.length - 1, min(MIN_LENGTH, c.length) - 1, -1):
+        step = max(1, round(c.step * length / c.length))
+        if frames_needed(N_CORRELATE, length=length, step=step) <= n_frames:
+            return dataclasses.replace(
+                config, combine=dataclasses.replace(c, length=length, step=step))
+    need = frames_needed(N_CORRELATE, length=min(MIN_LENGTH, c.length),
+                         step=max(1, round(c.step * min(MIN_LENGTH, c.length) / c.length)))
+    raise ValueError(f"the sequence has {n_frames} frames; detection needs at least {need} "
+                     f"(3 combined frames of at least {min(MIN_LENGTH, c.length)} frames)")
 
 
 def iter_results(frames, config: ProcessConfig | None = None, *,
@@ -83,19 +119,17 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
     Raises
     ------
     ValueError
-        Fewer frames than 3 combined frames need (``min_frames``); the message says how
-        many are needed.
+        Fewer frames than 3 combined frames of ``MIN_LENGTH`` frames need; the message says
+        how many are needed. Sequences shorter than ``min_frames`` run with shorter
+        combined frames (``fit_config``).
     """
     config = config or ProcessConfig()
-    cc = config.combine
     shape = tuple(frames.shape)
     if len(shape) != 3:
         raise ValueError(f"frames must have shape (T, H, W), got {shape}")
     n_frames = shape[0]
-    need = min_frames(config)
-    if n_frames < need:
-        raise ValueError(f"the sequence has {n_frames} frames; detection needs at least {need} "
-                         f"(3 combined frames of {cc.length} frames, step {cc.step})")
+    config = fit_config(config, n_frames)
+    cc = config.combine
     if int(workers) != workers or workers < 1:
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     starts = window_starts(n_frames, length=cc.length, step=cc.step)
@@ -381,17 +415,22 @@ def process_file(input, output, config: ProcessConfig | None = None, *, dataset=
     counts = {"candidates": 0, "detections": 0, "segments": 0}
     with open_sequence(input, dataset) as src:
         n_frames, height, width = src.shape
-        need = min_frames(config)
-        if n_frames < need:
-            raise InputError(f"the sequence has {n_frames} frames; detection needs at least "
-                             f"{need} (3 combined frames of {config.combine.length} frames, "
-                             f"step {config.combine.step})", input)
-        attrs = {"config": to_json(config), "input": os.fspath(Path(input).name),
+        try:
+            run = fit_config(config, n_frames)
+        except ValueError as exc:
+            raise InputError(str(exc), input) from None
+        attrs = {"config": to_json(run), "input": os.fspath(Path(input).name),
                  "input_path": os.fspath(Path(input).resolve()),
-                 "combined_length": config.combine.length,
-                 "combined_step": config.combine.step,
+                 "combined_length": run.combine.length,
+                 "combined_step": run.combine.step,
                  "n_frames": n_frames, "frame_height": height, "frame_width": width,
                  **(attrs or {})}
+        if run is not config:
+            # a short sequence: say what ran instead of the configured combined frames
+            attrs["short_sequence"] = True
+            attrs["configured_length"] = config.combine.length
+            log.info("%d frames: combined frames of %d frames instead of %d (a short sequence)",
+                     n_frames, run.combine.length, config.combine.length)
         detections = []
         with ResultsWriter(output, force=force, attrs=attrs) as out:
             n_combined = 0

@@ -46,11 +46,11 @@ from __future__ import annotations
 import numpy as np
 import cv2
 
+from irdetect.robust import median_mad_sigma, sorted_median, tile_map, tile_samples
+
 METHODS = ("tophat", "maxmean", "maxmedian", "temporal", "registered", "auto", "none")
 LEAD_INS = ("future", "tophat")
 
-#: 1.4826 * MAD is the standard deviation of a Gaussian.
-MAD_TO_SIGMA = 1.4826
 
 
 def suppress(frames, previous=None, following=None, *, method: str = "auto", size: int = 9,
@@ -313,33 +313,6 @@ def _clean(stack: np.ndarray) -> np.ndarray:
     return out
 
 
-def sorted_median(v: np.ndarray) -> np.ndarray:
-    """``np.median(v, axis=-1)`` (same values) by a full sort, which numpy vectorises:
-    about 10x faster than np.median's partition on many short rows."""
-    v = np.sort(v, axis=-1)
-    n = v.shape[-1]
-    if n % 2:
-        return v[..., n // 2]
-    return (v[..., n // 2 - 1] + v[..., n // 2]) / v.dtype.type(2)
-
-
-def median_mad_sigma(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Median and robust sigma of every row (last axis) of ``v``.
-
-    sigma = 1.4826 x MAD (the standard deviation of a Gaussian); where the MAD is 0 (more
-    than half a row equal, e.g. quantised flat patches) 1.2533 x the mean absolute
-    deviation is taken instead (the same for a Gaussian). Shared by the noise estimates of
-    every stage (``noise_sigma``, ``irdetect.detect``, ``irdetect.correlate``).
-    """
-    med = sorted_median(v)
-    dev = np.abs(v - np.asarray(med)[..., None])
-    sigma = np.asarray(MAD_TO_SIGMA * sorted_median(dev))
-    flat = sigma <= 0
-    if flat.any():
-        sigma = np.where(flat, 1.2533 * dev.mean(axis=-1), sigma)
-    return med, sigma
-
-
 def _robust_sigma(v: np.ndarray) -> float:
     if v.size == 0:
         return float(np.finfo(np.float32).tiny)
@@ -347,13 +320,8 @@ def _robust_sigma(v: np.ndarray) -> float:
 
 
 def _sigma_map(r: np.ndarray, tile: int) -> np.ndarray:
-    h, w = r.shape
-    ny, nx = max(1, h // tile), max(1, w // tile)
-    th, tw = h // ny, w // nx
-    blocks = r[:ny * th, :nx * tw].reshape(ny, th, nx, tw).transpose(0, 2, 1, 3)
-    sig = median_mad_sigma(blocks.reshape(ny, nx, th * tw))[1]
-    sig = np.maximum(sig, np.finfo(np.float32).tiny).astype(np.float32)
-    return cv2.resize(sig, (w, h), interpolation=cv2.INTER_LINEAR)
+    sig = median_mad_sigma(tile_samples(r, tile))[1]
+    return tile_map(np.maximum(sig, np.finfo(np.float32).tiny), *r.shape)
 
 
 def _tophat(frame: np.ndarray, size: int, guard: int) -> np.ndarray:

@@ -11,7 +11,8 @@ from irdetect.config import ProcessConfig
 from irdetect.errors import InputError
 from irdetect.io import read_results, write_sequence
 from irdetect.metrics.detection import score_detections
-from irdetect.pipeline import detect_sequence, iter_results, min_frames, process_file
+from irdetect.pipeline import (detect_sequence, fit_config, iter_results, min_frames,
+                               process_file)
 from irdetect.simulate import simulate
 
 
@@ -72,16 +73,51 @@ def test_overlapping_windows_with_a_spatial_suppressor():
     assert targets == 28 and detected >= 0.9 * targets and false == 0
 
 
+@pytest.mark.parametrize("size", [(213, 251), (100, 80), (37, 41)])
+def test_frames_of_any_size_are_processed(size):
+    h, w = size
+    for seed in (1, 2):
+        frames, truth = simulate("wan2008", snr=5, rng=seed, n_frames=36, height=h, width=w,
+                                 n_targets=1, directions=(30.0,), margin=4.0)
+        m = _score(detect_sequence(frames), frames, truth)
+        assert m["detected"] >= 2 and m["false"] == 0
+
+
 def test_too_few_frames_says_how_many(tmp_path):
-    frames, _ = simulate("wan2008", rng=0, n_frames=30, height=40, width=40, n_targets=1, directions=(45.0,))
+    frames, _ = simulate("wan2008", rng=0, n_frames=11, height=40, width=40, n_targets=1,
+                         directions=(45.0,))
     assert min_frames() == 36
-    with pytest.raises(ValueError, match="has 30 frames; detection needs at least 36"):
+    with pytest.raises(ValueError, match="has 11 frames; detection needs at least 12"):
         detect_sequence(frames)
     seq = tmp_path / "short.h5"
     write_sequence(seq, frames)
-    with pytest.raises(InputError, match="needs at least 36"):
+    with pytest.raises(InputError, match="needs at least 12"):
         process_file(seq, tmp_path / "out.h5")
     assert not (tmp_path / "out.h5").exists()
+
+
+@pytest.mark.parametrize("n_frames, length", [(36, 12), (35, 11), (30, 10), (20, 6), (12, 4)])
+def test_short_sequences_run_with_shorter_combined_frames(n_frames, length):
+    cfg = fit_config(ProcessConfig(), n_frames)
+    assert (cfg.combine.length, cfg.combine.step) == (length, length)
+    assert dataclasses.replace(cfg, combine=ProcessConfig().combine) == ProcessConfig()
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_30_frame_sequence_is_processed_and_flagged(tmp_path, seed):
+    frames, truth = simulate("wan2008", snr=5, rng=seed, n_frames=30, height=96, width=128,
+                             n_targets=2, directions=(30.0, 200.0))
+    seq = tmp_path / "clip.h5"
+    write_sequence(seq, frames, truth=truth)
+    process_file(seq, tmp_path / "out.h5")
+    res = read_results(tmp_path / "out.h5")
+    assert res.attrs["short_sequence"] and res.attrs["combined_length"] == 10
+    assert res.attrs["configured_length"] == 12 and res.config["combine"]["length"] == 10
+    m = score_detections(res["detections"], truth, n_frames=30, length=10, step=10,
+                         shape=frames.shape[1:], gate=3.0)
+    assert m["targets"] == 6 and m["detected"] >= 5 and m["false"] == 0
+    from irdetect.commands.info import describe
+    assert "a short sequence of 30 frames: 12 configured" in "\n".join(describe(tmp_path / "out.h5"))
 
 
 @pytest.mark.parametrize("kind", ["zero", "constant", "nan", "hot-once", "hot-always"])

@@ -47,7 +47,11 @@ def _describe_results(path) -> list[str]:
     for name, table in res.tables.items():
         lines.append(f"  /{name}: {len(table)} rows ({', '.join(table.dtype.names)})")
     if "combined_length" in res.attrs:
-        lines.append(f"  combined frames of {res.attrs['combined_length']} frames")
+        line = f"  combined frames of {res.attrs['combined_length']} frames"
+        if res.attrs.get("short_sequence"):
+            line += (f" (a short sequence of {res.attrs.get('n_frames', '?')} frames: "
+                     f"{res.attrs.get('configured_length', '?')} configured)")
+        lines.append(line)
     if "config" in res.attrs:
         lines.append(f"  config {json.dumps(res.config, sort_keys=True)[:200]}")
     return lines
