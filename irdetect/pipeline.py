@@ -29,6 +29,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from irdetect import tables
+from irdetect.camera import CameraMotion
 from irdetect.combine import combine, frames_needed, window_starts
 from irdetect.config import ProcessConfig, to_json
 from irdetect.correlate import (DP_LEADS, Evidence, correlate, matched_frame, noise_level,
@@ -113,8 +114,10 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
     ------
     dict
         ``{"candidates": CANDIDATE rows, "detections": DETECTION rows,
-        "segments": SEGMENT rows}`` for one combined frame, in order; the
-        segments are those starting in that combined frame.
+        "segments": SEGMENT rows, "camera": CAMERA rows}`` for one combined frame, in
+        order; the segments are those starting in that combined frame, the camera rows
+        those of its frames not given before (``irdetect.camera``; zeros unless
+        ``suppress.method`` is ``auto`` or ``registered``).
 
     Raises
     ------
@@ -137,7 +140,8 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
     # the first window(s) look ahead: their first frames have no past (``lead_in``)
     ahead = [future_frames(start=int(s), stop=int(s) + cc.length, **params.suppress)
              for s in starts]
-    reader = _Reader(frames, past_frames(**params.suppress), cc.length, max(ahead))
+    reader = _Reader(frames, past_frames(**params.suppress), cc.length, max(ahead),
+                     camera=config.suppress.method in ("auto", "registered"))
     pool = ThreadPoolExecutor(int(workers)) if workers > 1 else None
     fronts: deque = deque()      # windows read and submitted, in order
     pending: deque = deque()
@@ -146,19 +150,21 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
 
     def submit(k: int):
         t0 = time.perf_counter()
-        block, previous = reader.read(int(starts[k]), int(starts[k]) + cc.length + ahead[k])
+        s = int(starts[k])
+        block, previous = reader.read(s, s + cc.length + ahead[k])
+        camera = reader.offsets[s - len(previous):s + len(block)]
         block, following = block[:cc.length], block[cc.length:]
         previous = previous if len(previous) else None
         following = following if len(following) else None
         if pool is None:
             _lap(timings, "read", t0)
-            return _Ready(_front(block, previous, params, timings, following))
+            return _Ready(_front(block, previous, params, timings, following, camera))
         # the reader's buffer is reused: the thread gets its own copy
-        block = block.copy()
+        block, camera = block.copy(), camera.copy()
         previous = None if previous is None else previous.copy()
         following = None if following is None else following.copy()
         _lap(timings, "read", t0)
-        return pool.submit(_front, block, previous, params, timings, following)
+        return pool.submit(_front, block, previous, params, timings, following, camera)
 
     corrs: deque = deque()       # correlations of window triples submitted, in order
     first = 0                    # the oldest pending window
@@ -174,7 +180,19 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
         for i, p in enumerate(list(pending)[:N_CORRELATE]):
             p.confirm(corr.index[:, i], segments, corr.positions[:, i])
         first += 1
-        return pending.popleft().emit(segments)
+        done = pending.popleft()
+        return with_camera(done.emit(segments), done.start + cc.length)
+
+    camera_done = 0              # frames whose /camera rows were emitted
+
+    def with_camera(chunk: dict, end: int) -> dict:
+        """The chunk of one window with the /camera rows of its frames up to ``end``."""
+        nonlocal camera_done
+        f = np.arange(camera_done, max(end, camera_done))
+        chunk["camera"] = tables.from_columns(tables.CAMERA, frame=f, dx=reader.offsets[f, 0],
+                                              dy=reader.offsets[f, 1])
+        camera_done = end
+        return chunk
 
     try:
         submitted = 0
@@ -205,7 +223,8 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
         while corrs:
             yield take()
         while pending:
-            yield pending.popleft().emit(tables.empty(tables.SEGMENT))
+            done = pending.popleft()
+            yield with_camera(done.emit(tables.empty(tables.SEGMENT)), done.start + cc.length)
     finally:
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
@@ -236,14 +255,17 @@ class _StageParams:
         self.psf = config.combine.dp_smooth
 
 
-def _front(block, previous, params: _StageParams, timings: dict | None, following=None):
+def _front(block, previous, params: _StageParams, timings: dict | None, following=None,
+           camera=None):
     """One window's suppression, combination, detection and fusion (``following``: the
-    raw frames after the window that the first frames' background looks ahead to).
+    raw frames after the window that the first frames' background looks ahead to;
+    ``camera``: the offsets of previous, block and following).
 
     Returns (candidates, candidate pixels, matched residual frames (L, H, W) or None).
     """
     t = time.perf_counter()
-    residual = suppress(block, previous=previous, following=following, **params.suppress)
+    residual = suppress(block, previous=previous, following=following, camera=camera,
+                        **params.suppress)
     t = _lap(timings, "suppress", t)
     presmoothed = params.matched and params.combine["projection"] == "dp" and params.psf > 0
     if presmoothed:
@@ -325,8 +347,9 @@ def detect_sequence(frames, config: ProcessConfig | None = None, *,
     Returns
     -------
     dict
-        ``candidates``, ``detections``, ``segments`` (``irdetect.tables`` dtypes; x =
-        column, y = row in px) and ``tracks`` (``initiate_tracks`` on the detections).
+        ``candidates``, ``detections``, ``segments``, ``camera`` (``irdetect.tables``
+        dtypes; x = column, y = row in px) and ``tracks`` (``initiate_tracks`` on the
+        detections).
 
     Examples
     --------
@@ -337,7 +360,8 @@ def detect_sequence(frames, config: ProcessConfig | None = None, *,
     True
     """
     config = config or ProcessConfig()
-    parts: dict[str, list] = {"candidates": [], "detections": [], "segments": []}
+    parts: dict[str, list] = {"candidates": [], "detections": [], "segments": [],
+                              "camera": []}
     for chunk in iter_results(frames, config, progress=progress, workers=workers):
         for name, rows in chunk.items():
             parts[name].append(rows)
@@ -440,7 +464,8 @@ def process_file(input, output, config: ProcessConfig | None = None, *, dataset=
                 n_combined += 1
                 for name, rows in chunk.items():
                     out.append(name, rows)
-                    counts[name] += len(rows)
+                    if name in counts:
+                        counts[name] += len(rows)
                 detections.append(chunk["detections"])
                 _lap(timings, "write", t)
             t = time.perf_counter()
@@ -543,11 +568,17 @@ class _Reader:
     #: largest read-ahead in bytes (a 64-frame chunk of 640x512 uint16 frames is 42 MB)
     MAX_BLOCK_BYTES = 48 << 20
 
-    def __init__(self, frames, history: int, length: int, ahead: int = 0):
+    def __init__(self, frames, history: int, length: int, ahead: int = 0,
+                 camera: bool = True):
         self.frames = frames
         self.history = history
         n, h, w = (int(v) for v in frames.shape)
         self.n = n
+        # the camera's offsets of every frame read, measured once, in order (zeros when
+        # the configuration takes the camera to be still)
+        self.motion = CameraMotion((h, w)) if camera else None
+        self.offsets = np.zeros((n, 2))
+        self.measured = 0           # frames [0, measured) have offsets
         frame_bytes = h * w * np.dtype(frames.dtype).itemsize
         chunk = max(1, int(getattr(frames, "block_frames", 1)))
         self.block = max(length, min(chunk, max(1, self.MAX_BLOCK_BYTES // frame_bytes)))
@@ -576,6 +607,13 @@ class _Reader:
             self.frames.read_into(start, stop, out)
         else:
             out[...] = self.frames[start:stop]
+        if self.motion is not None and stop > self.measured:
+            # frames skipped (windows with gaps) keep the last offset
+            first = max(start, self.measured)
+            self.offsets[self.measured:first] = self.offsets[self.measured - 1] \
+                if self.measured else 0.0
+            self.offsets[first:stop] = self.motion.update(out[first - start:])
+            self.measured = stop
 
 
 def _bar(total: int, progress: bool):

@@ -19,7 +19,7 @@ four suppressors and picks the default by measurement (``scripts/bench_detection
     of any shape, and also still targets.
 ``registered``
     Motion-compensated temporal background for a moving camera (beyond the paper): the
-    global shift between consecutive frames is measured by phase correlation, the past
+    camera's image offset of every frame is measured (``irdetect.camera``), the past
     frames at lags ``gap`` .. ``gap + history - 1`` are shifted onto the current frame
     and averaged, the average is dilated by ``tolerance`` px (so sub-pixel registration
     error on edges leaves no residue) and subtracted. Before that, the sensor's fixed
@@ -33,9 +33,9 @@ four suppressors and picks the default by measurement (``scripts/bench_detection
     passes them as ``following``) or is a ``size`` top-hat (``lead_in="tophat"``).
 ``auto``
     ``temporal`` while the camera holds still, ``registered`` when it moves: per call
-    (one window when streaming), the shift of the last frame against the oldest and the
-    middle frame held (``previous`` and ``frames``) is measured; if either reaches
-    ``STILL_PX`` px the camera is taken to move.
+    (one window when streaming), when the camera's offsets over the frames held
+    (``previous`` and ``frames``) span ``STILL_PX`` px or more the camera is taken to
+    move (``camera_moves``).
 
 All arithmetic is float32 with OpenCV filters; a stack (T, H, W) is processed frame by
 frame inside one call (no Python work per pixel).
@@ -46,6 +46,7 @@ from __future__ import annotations
 import numpy as np
 import cv2
 
+from irdetect.camera import estimate_motion
 from irdetect.robust import median_mad_sigma, sorted_median, tile_map, tile_samples
 
 METHODS = ("tophat", "maxmean", "maxmedian", "temporal", "registered", "auto", "none")
@@ -53,7 +54,8 @@ LEAD_INS = ("future", "tophat")
 
 
 
-def suppress(frames, previous=None, following=None, *, method: str = "auto", size: int = 9,
+def suppress(frames, previous=None, following=None, camera=None, *, method: str = "auto",
+             size: int = 9,
              guard: int = 1, history: int = 12, gap: int = 8, tolerance: int = 1,
              fixed_pattern: bool = True, samples: int = 3,
              lead_in: str = "future") -> np.ndarray:
@@ -71,6 +73,11 @@ def suppress(frames, previous=None, following=None, *, method: str = "auto", siz
         ``temporal`` / ``registered`` with ``lead_in="future"``: raw frames just after
         ``frames[-1]``, read only for the first frames of a sequence (the block needs
         ``future_frames(...)`` of them); they are not suppressed themselves.
+    camera : ndarray of shape (P + T + N, 2), optional
+        ``registered`` / ``auto``: the camera's image offsets (x, y) px of ``previous``,
+        ``frames`` and ``following`` (``irdetect.camera``: a scene point at p in one
+        frame is at p + C_j - C_i in another); measured here from those frames when
+        not given (the pipeline measures them once per sequence).
     method : {"tophat", "maxmean", "maxmedian", "temporal", "registered", "auto", "none"}
         The suppressor (see the module docstring).
     size : int
@@ -115,9 +122,10 @@ def suppress(frames, previous=None, following=None, *, method: str = "auto", siz
 
     ``registered`` (for a moving camera, measured on the DAUB sequences, docs/real.md):
     background B_t = dilate(mean_l warp(F_{t-l}, d_{t-l,t})) over ``samples`` lags l
-    evenly spread in [gap, gap + history) that exist, d the shift of frame t against
-    frame t-l by ``cv2.phaseCorrelate`` (Hanning window) measured directly for each pair;
-    pixels that no shifted past frame covers give residual 0. The first ``gap`` frames
+    evenly spread in [gap, gap + history) that exist, d = C_t - C_{t-l} the shift of
+    frame t against frame t-l from the camera's offsets C (``irdetect.camera``, each
+    frame measured against a keyframe: once per frame, not per lag); pixels that no
+    shifted past frame covers give residual 0. The first ``gap`` frames
     of a sequence, with no past that old, take frames t+l instead (``lead_in="future"``:
     the same background, looking ahead) or the ``size`` top-hat (``"tophat"``, whose
     clutter is wider than a target but not always: a target on the edge of a bright
@@ -160,6 +168,7 @@ def suppress(frames, previous=None, following=None, *, method: str = "auto", siz
     if method in ("temporal", "registered", "auto"):
         past = None
         keep = past_frames(method, history=history, gap=gap)
+        n_given = 0 if previous is None else len(previous)
         if previous is not None:
             past = np.asarray(previous)
             if past.ndim != 3 or past.shape[1:] != stack.shape[1:]:
@@ -173,9 +182,21 @@ def suppress(frames, previous=None, following=None, *, method: str = "auto", siz
                 raise ValueError(f"following must have shape (N, {stack.shape[1]}, "
                                  f"{stack.shape[2]}), got {future.shape}")
             future = _clean(future) if len(future) else None
+        n_past = 0 if past is None else len(past)
+        n_future = 0 if future is None else len(future)
+        if camera is not None:
+            cam = np.asarray(camera, np.float64)
+            n_follow = 0 if following is None else len(following)
+            if cam.shape != (n_given + len(stack) + n_follow, 2):
+                raise ValueError(f"camera must have shape ({n_given + len(stack) + n_follow}, 2)"
+                                 f" (previous, frames, following), got {cam.shape}")
+            cam = cam[n_given - n_past:n_given + len(stack) + n_future]
+        elif method != "temporal":
+            parts = [a for a in (past, stack, future) if a is not None]
+            cam = estimate_motion(parts[0] if len(parts) == 1 else np.concatenate(parts))
         if method == "auto":
-            # the check converts the 3 frames it compares itself
-            method = "registered" if camera_moves(stack, past) else "temporal"
+            moves = camera_moves(cam[:n_past + len(stack)])
+            method = "registered" if moves else "temporal"
         if method == "temporal":
             # integer frames enter the float32 running sum as they are stored (the same
             # values as converted copies, without converting the past once more)
@@ -185,9 +206,9 @@ def suppress(frames, previous=None, following=None, *, method: str = "auto", siz
             out = _temporal(stack, int(history), int(size), past, future,
                             lead_in == "future")
         else:
-            out = _registered(stack, None if past is None else _clean(past), int(history),
-                              int(gap), int(tolerance), bool(fixed_pattern), int(samples),
-                              int(size), future, lead_in == "future")
+            out = _registered(stack, None if past is None else _clean(past), cam,
+                              int(history), int(gap), int(tolerance), bool(fixed_pattern),
+                              int(samples), int(size), future, lead_in == "future")
     elif method == "none":
         out = stack.copy()
     else:
@@ -231,32 +252,19 @@ def future_frames(method: str, start: int, stop: int, *, history: int = 12, gap:
 STILL_PX = 0.5
 
 
-def camera_moves(frames, previous=None) -> bool:
-    """Whether the global shift within ``previous`` + ``frames`` reaches ``STILL_PX`` px.
+def camera_moves(offsets) -> bool:
+    """Whether the camera moves: the last frame held is shifted by ``STILL_PX`` px or more
+    (either axis) against the oldest or the middle one.
 
-    Parameters
-    ----------
-    frames : ndarray of shape (T, H, W)
-    previous : ndarray of shape (P, H, W), optional
-
-    Returns
-    -------
-    bool
-        True when the last frame is shifted by >= ``STILL_PX`` px (either axis) against
-        the oldest or the middle frame (two phase correlations).
+    ``offsets``: ndarray of shape (T, 2), the camera's image offsets (x, y) px of
+    consecutive frames (``irdetect.camera``).
     """
-    frames = np.asarray(frames)
-    n_past = 0 if previous is None else len(previous)
-    last = n_past + len(frames) - 1
-    if last < 1:
+    c = np.asarray(offsets, np.float64).reshape(-1, 2)
+    if len(c) < 2:
         return False
-    # only the 3 frames compared are converted and cleaned (not the whole window)
-    used = sorted({0, last // 2, last})
-    pick = [np.asarray(previous[i]) if i < n_past else frames[i - n_past] for i in used]
-    reg = _Registrar(_clean(np.stack(pick)))
-    at = {i: k for k, i in enumerate(used)}
-    return any(max(abs(d) for d in reg.shift(at[ref], at[last])) >= STILL_PX
-               for ref in {0, last // 2} if ref < last)
+    last = c[-1]
+    return bool(max(np.abs(last - c[0]).max(), np.abs(last - c[(len(c) - 1) // 2]).max())
+                >= STILL_PX)
 
 
 def noise_sigma(residual, *, tile: int | None = None, sample: int = 2) -> np.ndarray | float:
@@ -418,54 +426,6 @@ def _accumulate(frame: np.ndarray, total: np.ndarray) -> None:
         np.add(total, frame, out=total)
 
 
-#: phase-correlation peaks weaker than this (or than 60 / sqrt(H W), what pure noise
-#: reaches on small frames) are not trusted as a global shift
-MIN_RESPONSE = 0.15
-
-
-class _Registrar:
-    """Global shift between two frames by phase correlation (Hanning window).
-
-    Each background frame is measured directly against the current frame. Chaining
-    frame-to-frame shifts does not work here: phase correlation's sub-pixel estimate is
-    biased towards whole pixels and towards still structure (vignetting, fixed pattern),
-    so a sum over consecutive frames moving 0.5 px each lost 30 % of the motion on
-    daub-data20, and chains through the blurred frames of a camera jump drifted by 1 px
-    on daub-data13-c.
-    """
-
-    def __init__(self, frames: np.ndarray):
-        t, h, w = frames.shape
-        self.frames = frames
-        self.ok = h >= 8 and w >= 8
-        self._flat: dict[int, bool] = {}
-        self.limit = min(h, w) / 4.0
-        # pure noise gives peaks up to about 50 / sqrt(H W) (measured, 32-256 px frames)
-        self.min_response = max(MIN_RESPONSE, 60.0 / np.sqrt(h * w))
-        self.win = cv2.createHanningWindow((w, h), cv2.CV_32F) if self.ok else None
-
-    def flat(self, i: int) -> bool:
-        """Frame ``i`` is constant (std 0); computed for the frames actually used."""
-        if i not in self._flat:
-            self._flat[i] = bool(self.frames[i].std() <= 0)
-        return self._flat[i]
-
-    def shift(self, ref: int, cur: int) -> tuple[float, float]:
-        """(dx, dy) such that frame ``cur`` ~ frame ``ref`` moved by (dx, dy)."""
-        if not self.ok or self.flat(ref) or self.flat(cur):
-            return 0.0, 0.0
-        # copies: OpenCV 5.0's phaseCorrelate multiplies the window into its inputs
-        d, response = cv2.phaseCorrelate(self.frames[ref].copy(), self.frames[cur].copy(),
-                                         self.win)
-        # a featureless pair (noise only) gives a weak peak anywhere: take no motion
-        # rather than a jump (simulated 320x240 noise: response 0.02-0.09; DAUB pairs 19
-        # frames apart: 0.6-0.95)
-        if not (response >= self.min_response and np.isfinite(d).all()
-                and abs(d[0]) <= self.limit and abs(d[1]) <= self.limit):
-            return 0.0, 0.0
-        return float(d[0]), float(d[1])
-
-
 def registered_lags(i: int, *, history: int, gap: int, samples: int,
                     ahead: int = 0) -> list[int]:
     """Lags of the past frames in the background of frame ``i`` (frames 0..i-1 exist);
@@ -493,14 +453,13 @@ def _median_axis0(stack: np.ndarray) -> np.ndarray:
     return med.reshape(stack.shape[1:]).astype(np.float32)
 
 
-def _registered(stack, past, history, gap, tolerance, fixed_pattern, samples, size,
+def _registered(stack, past, camera, history, gap, tolerance, fixed_pattern, samples, size,
                 future=None, ahead=False):
     n_past = 0 if past is None else len(past)
     parts = [a for a in (past, stack, future) if a is not None]
     full = stack if len(parts) == 1 else np.concatenate(parts)
     if fixed_pattern and len(full) >= 3:
         full = full - _fixed_pattern(full)[None]
-    reg = _Registrar(full)
     _, h, w = full.shape
     out = np.zeros_like(stack)
     kern = np.ones((2 * tolerance + 1, 2 * tolerance + 1), np.uint8) if tolerance else None
@@ -516,7 +475,7 @@ def _registered(stack, past, history, gap, tolerance, fixed_pattern, samples, si
         total = np.zeros((h, w), np.float32)
         count = np.zeros((h, w), np.float32)
         for lag in lags:      # a loop over a handful of past frames
-            dx, dy = reg.shift(i - lag, i)
+            dx, dy = camera[i] - camera[i - lag]
             m = np.float32([[1, 0, dx], [0, 1, dy]])
             warped = cv2.warpAffine(full[i - lag], m, (w, h), flags=cv2.INTER_LINEAR,
                                     borderMode=cv2.BORDER_CONSTANT, borderValue=0)

@@ -44,6 +44,10 @@ TRACK = np.dtype([
     ("x0", "<f8"), ("y0", "<f8"),
 ])
 
+#: The camera's image motion, one row per frame: a scene point at (x, y) in frame 0 is at
+#: (x + dx, y + dy) in frame ``frame`` (px; ``irdetect.camera``).
+CAMERA = np.dtype([("frame", "<i8"), ("dx", "<f8"), ("dy", "<f8")])
+
 #: Radar-style measurements, one row per measurement; range/azimuth NaN when not polar.
 SCAN = np.dtype([
     ("scan", "<i8"), ("time", "<f8"), ("x", "<f8"), ("y", "<f8"),
@@ -69,7 +73,7 @@ TRACK_POINT = np.dtype([
 BY_NAME = {
     "truth": TRUTH, "detections": DETECTION, "candidates": CANDIDATE, "segments": SEGMENT,
     "tracks": TRACK, "scans": SCAN, "scan_truth": SCAN_TRUTH, "scan_tracks": SCAN_TRACK,
-    "track_points": TRACK_POINT,
+    "track_points": TRACK_POINT, "camera": CAMERA,
 }
 
 

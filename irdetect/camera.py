@@ -1,0 +1,256 @@
+"""Camera motion: the global image shift of every frame, measured once per sequence.
+
+A scene point at image position p in frame 0 lies at p + C_t in frame t (x = column,
+y = row, px): ``C`` of shape (T, 2) is the camera's image motion, translation only. It is
+what the registered background, the scene-coordinate detection of fast targets and the
+track initiation share, and what ``/camera`` in a results file holds.
+
+Each frame is matched against a keyframe by phase correlation, coarse on the frames
+reduced to about ``WORK_PX`` px, then refined at full resolution on a crop of
+``CROP_PX`` px around the keyframe's most textured block. The keyframe moves on when
+the shift against it grows past a quarter of the reduced frame or the match is weak, so
+errors add up only at keyframe changes, not frame by frame (chained frame-to-frame
+estimates drift: phase correlation's sub-pixel estimate is biased towards whole pixels,
+docs/real.md). The cross-power spectrum is weighted by a Gaussian low-pass before its
+inverse: the sensor's fixed pattern (hot pixels, a column mesh), which stays put in the
+image and has a flat spectrum, then cannot pin the peak at zero shift, and the broader
+peak gives a less biased sub-pixel position (a Gaussian fit to its 3 x 3 top).
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+#: frames are reduced (``cv2.pyrDown``, at least once when they are 2 x WORK_PX px or
+#: more) until their shorter side is under 2 x WORK_PX
+WORK_PX = 64
+#: side of the full-resolution crop the coarse shift is refined on (at most half the
+#: frame's shorter side)
+CROP_PX = 64
+#: refinement steps on the full-resolution crop (``CameraMotion._refine``)
+REFINE_STEPS = 1
+#: matches whose peak stands less than this many robust sigmas above the correlation
+#: surface are not trusted (featureless frames, a blurred jump): the frame keeps the
+#: previous frame's offset and the keyframe stays
+MIN_PEAK = 7.0
+#: the cross-power spectrum's weight: a Gaussian low-pass of this sigma in cycles per px
+LOWPASS = 0.1
+
+
+class _Correlator:
+    """Phase correlation on frames of one shape, reference spectrum cached."""
+
+    def __init__(self, shape):
+        h, w = shape
+        self.shape = (h, w)
+        self.window = cv2.createHanningWindow((w, h), cv2.CV_32F)
+        fy = np.fft.fftfreq(h).astype(np.float32)[:, None]
+        fx = np.fft.fftfreq(w).astype(np.float32)[None, :]
+        self.lowpass = np.exp(-(fx ** 2 + fy ** 2) / (2 * LOWPASS ** 2)).astype(np.float32)
+
+    def spectrum(self, a: np.ndarray) -> np.ndarray:
+        """Spectrum of a frame (h, w) after a 3x3 median (a hot pixel or any other
+        single-pixel spike of the sensor is no structure to register on), mean removed,
+        Hanning window."""
+        a = cv2.medianBlur(np.ascontiguousarray(a, np.float32), 3)
+        a = (a - np.float32(a.mean())) * self.window
+        return cv2.dft(a, flags=cv2.DFT_COMPLEX_OUTPUT)
+
+    def shift(self, ref: np.ndarray, cur: np.ndarray) -> tuple[np.ndarray, float]:
+        """(d, peak): frame ``cur`` ~ frame ``ref`` moved by d = (dx, dy) px; ``peak`` the
+        correlation peak in robust sigmas of the surface (spectra from ``spectrum``)."""
+        x = cv2.mulSpectrums(cur, ref, 0, conjB=True)
+        mag = cv2.magnitude(x[..., 0], x[..., 1])
+        np.maximum(mag, np.float32(1e-20), out=mag)
+        np.divide(self.lowpass, mag, out=mag)
+        cv2.multiply(x, cv2.merge([mag, mag]), dst=x)
+        r = cv2.idft(x, flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
+        h, w = r.shape
+        _, top, _, (px, py) = cv2.minMaxLoc(r)
+        mean, std = cv2.meanStdDev(r)
+        dx = _peak_offset(r[py, (px - 1) % w], r[py, px], r[py, (px + 1) % w])
+        dy = _peak_offset(r[(py - 1) % h, px], r[py, px], r[(py + 1) % h, px])
+        # the peak's index wraps: shifts beyond half the size are negative
+        sx = px + dx - (w if px > w // 2 else 0)
+        sy = py + dy - (h if py > h // 2 else 0)
+        return np.array([sx, sy]), (top - float(mean[0, 0])) / max(float(std[0, 0]), 1e-20)
+
+
+def _peak_offset(a: float, b: float, c: float) -> float:
+    """Sub-pixel offset of a peak b between neighbours a and c: a Gaussian through the 3
+    values (a parabola through their logarithms), a parabola when one is not positive."""
+    a, b, c = float(a), float(b), float(c)
+    if a > 0 and b > 0 and c > 0:
+        la, lc = math.log(a), math.log(c)
+        d = la - 2 * math.log(b) + lc
+    else:
+        la, lc, d = a, c, a - 2 * b + c
+    if d >= 0:
+        return 0.0
+    return min(0.5, max(-0.5, 0.5 * (la - lc) / d))
+
+
+def _reduce(frame: np.ndarray, levels: int) -> np.ndarray:
+    """``levels`` x ``cv2.pyrDown`` (in the frame's dtype when OpenCV takes it), float32."""
+    out = np.asarray(frame)
+    if out.dtype not in (np.uint8, np.uint16, np.float32):
+        out = out.astype(np.float32)
+    for _ in range(levels):
+        out = cv2.pyrDown(out)
+    return out.astype(np.float32, copy=False)
+
+
+class CameraMotion:
+    """Streaming estimate of the camera's image motion, frame by frame in order.
+
+    Parameters
+    ----------
+    shape : (int, int)
+        Frame (H, W).
+
+    Examples
+    --------
+    >>> import numpy as np, cv2
+    >>> rng = np.random.default_rng(0)
+    >>> scene = cv2.GaussianBlur(rng.normal(size=(300, 300)).astype(np.float32), (0, 0), 3)
+    >>> frames = np.stack([scene[10 + t:210 + t, 20:220] for t in range(5)])
+    >>> c = CameraMotion(frames.shape[1:]).update(frames)   # the scene moves up 1 px/frame
+    >>> np.round(c[:, 1], 1).tolist()
+    [0.0, -1.0, -2.0, -3.0, -4.0]
+    """
+
+    def __init__(self, shape):
+        h, w = (int(v) for v in shape)
+        self.shape = (h, w)
+        self.levels = 0
+        while min(h, w) >> (self.levels + 1) >= WORK_PX:
+            self.levels += 1
+        small = _reduce(np.zeros((h, w), np.float32), self.levels).shape
+        self.scale = 2.0 ** self.levels
+        self.coarse = _Correlator(small) if min(small) >= 8 else None
+        # the crop leaves room for shifts up to the keyframe's limit on either side
+        side = min(CROP_PX, min(h, w) // 2)
+        self.fine = _Correlator((side, side)) if side >= 16 else None
+        self.side = side
+        # px: the keyframe moves on beyond (the refinement's crop stays inside: the crop
+        # is chosen at least (H - side) / 4 px from the borders)
+        self.limit = max(2.0, (min(h, w) - side) / 8.0)
+        self.n = 0                             # frames seen
+        self.key = None                        # the keyframe (``_key``)
+        self.previous = None                   # (offset, reduced spectrum) of the last frame
+        self.last = np.zeros(2)
+
+    def update(self, frames) -> np.ndarray:
+        """Offsets C_t (n, 2) = (dx, dy) of the next ``frames`` (n, H, W), relative to the
+        first frame ever given (a scene point at p in that frame is at p + C_t)."""
+        out = np.zeros((len(frames), 2))
+        for i, frame in enumerate(frames):
+            out[i] = self._one(frame)
+        return out
+
+    def _one(self, frame) -> np.ndarray:
+        self.n += 1
+        if self.coarse is None:
+            return self.last.copy()
+        reduced = _reduce(frame, self.levels)
+        if not np.isfinite(reduced).all() or reduced.std() <= 0:
+            return self.last.copy()
+        small = self.coarse.spectrum(reduced)
+        if self.key is not None:
+            d = self._match(self.key, small, frame)
+            base = self.key[0]
+            if d is None and self.previous is not None:
+                # a weak match against the keyframe (too little overlap left, a blurred
+                # jump): one coarse step from the previous frame, which is kept as the
+                # next keyframe
+                d, base, self.key = self._match(self.previous, small, None), self.previous[0], None
+            if d is not None:
+                self.last = base + d
+                if np.abs(d).max() > self.limit:
+                    self.key = None
+        if self.key is None:
+            self.key = self._key(frame, small)
+        self.previous = (self.last.copy(), small)
+        return self.last.copy()
+
+    def _key(self, frame, small):
+        """A new keyframe: (offset, reduced spectrum, crop box, crop spectrum)."""
+        if self.fine is None:
+            return (self.last.copy(), small, None, None)
+        f = np.asarray(frame, np.float32)
+        x0, y0 = _textured_box(f, self.side)
+        crop = self.fine.spectrum(f[y0:y0 + self.side, x0:x0 + self.side].copy())
+        return (self.last.copy(), small, (x0, y0), crop)
+
+    def _match(self, ref, small, frame):
+        """Shift of ``frame`` (spectrum ``small`` of it reduced) against the reference
+        ``ref`` (coarse only when ``frame`` is None or ``ref`` has no crop), or None when
+        the match is weak."""
+        d, peak = self.coarse.shift(ref[1], small)
+        if peak < MIN_PEAK or not np.isfinite(d).all():
+            return None
+        d = d * self.scale
+        if frame is not None and len(ref) > 2 and ref[2] is not None:
+            d = self._refine(ref, frame, d)
+        return d
+
+    def _refine(self, ref, frame, d) -> np.ndarray:
+        """The coarse shift d refined on the keyframe's crop at full resolution: the
+        frame's crop is taken at the shifted position (bilinear) and the residual shift
+        measured against the keyframe's, ``REFINE_STEPS`` times (each step removes most
+        of the last one's sub-pixel bias)."""
+        (x0, y0), crop = ref[2], ref[3]
+        h, w = self.shape
+        s = self.side
+        for _ in range(REFINE_STEPS):
+            cx, cy = x0 + (s - 1) / 2 + d[0], y0 + (s - 1) / 2 + d[1]
+            if not (s / 2 <= cx <= w - 1 - s / 2 and s / 2 <= cy <= h - 1 - s / 2):
+                return d
+            # the crop's pixels and a margin, as float32, then the sub-pixel crop
+            ax, ay = max(0, int(cx - s / 2) - 1), max(0, int(cy - s / 2) - 1)
+            part = np.asarray(frame[ay:ay + s + 3, ax:ax + s + 3], np.float32)
+            cur = cv2.getRectSubPix(part, (s, s), (float(cx - ax), float(cy - ay)))
+            r, peak = self.fine.shift(crop, self.fine.spectrum(cur))
+            if peak < MIN_PEAK or np.abs(r).max() > s / 4:
+                return d
+            d = d + r
+        return d
+
+
+def _textured_box(frame: np.ndarray, side: int) -> tuple[int, int]:
+    """Top-left (x, y) of the ``side``-px square, on a grid of half steps inside the
+    central part of the frame, with the most gradient energy."""
+    h, w = frame.shape
+    gx = cv2.Sobel(frame, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(frame, cv2.CV_32F, 0, 1, ksize=3)
+    energy = cv2.integral(gx * gx + gy * gy)
+    step = max(1, side // 2)
+    best, at = -1.0, ((w - side) // 2, (h - side) // 2)
+    # keep a margin of a quarter of the free space so the shifted crop stays inside
+    for y in range((h - side) // 4, h - side - (h - side) // 4 + 1, step):
+        for x in range((w - side) // 4, w - side - (w - side) // 4 + 1, step):
+            e = energy[y + side, x + side] - energy[y, x + side] - energy[y + side, x] + energy[y, x]
+            if e > best:
+                best, at = e, (x, y)
+    return at
+
+
+def estimate_motion(frames) -> np.ndarray:
+    """Camera offsets C (T, 2) of a whole sequence (``CameraMotion`` over its frames).
+
+    Parameters
+    ----------
+    frames : ndarray of shape (T, H, W)
+
+    Returns
+    -------
+    ndarray of float64 of shape (T, 2)
+        (dx, dy) px: a scene point at p in frame 0 is at p + C_t in frame t.
+    """
+    frames = np.asarray(frames)
+    if frames.ndim != 3:
+        raise ValueError(f"frames must have shape (T, H, W), got {frames.shape}")
+    return CameraMotion(frames.shape[1:]).update(frames)
