@@ -23,6 +23,7 @@ import math
 
 import cv2
 import numpy as np
+import scipy.fft
 
 #: frames are reduced (``cv2.pyrDown``, at least once when they are 2 x WORK_PX px or
 #: more) until their shorter side is under 2 x WORK_PX
@@ -41,14 +42,19 @@ LOWPASS = 0.1
 
 
 class _Correlator:
-    """Phase correlation on frames of one shape, reference spectrum cached."""
+    """Phase correlation on frames of one shape, reference spectrum cached.
+
+    ``scipy.fft`` (pocketfft on one thread) rather than ``cv2.dft``: OpenCV's threaded DFT
+    gave results that differed in the 7th digit from run to run, and the offsets must
+    not depend on the run.
+    """
 
     def __init__(self, shape):
         h, w = shape
         self.shape = (h, w)
         self.window = cv2.createHanningWindow((w, h), cv2.CV_32F)
         fy = np.fft.fftfreq(h).astype(np.float32)[:, None]
-        fx = np.fft.fftfreq(w).astype(np.float32)[None, :]
+        fx = np.fft.rfftfreq(w).astype(np.float32)[None, :]
         self.lowpass = np.exp(-(fx ** 2 + fy ** 2) / (2 * LOWPASS ** 2)).astype(np.float32)
 
     def spectrum(self, a: np.ndarray) -> np.ndarray:
@@ -56,27 +62,29 @@ class _Correlator:
         single-pixel spike of the sensor is no structure to register on), mean removed,
         Hanning window."""
         a = cv2.medianBlur(np.ascontiguousarray(a, np.float32), 3)
-        a = (a - np.float32(a.mean())) * self.window
-        return cv2.dft(a, flags=cv2.DFT_COMPLEX_OUTPUT)
+        a = (a - np.float32(a.mean(dtype=np.float64))) * self.window
+        return scipy.fft.rfft2(a)
 
     def shift(self, ref: np.ndarray, cur: np.ndarray) -> tuple[np.ndarray, float]:
         """(d, peak): frame ``cur`` ~ frame ``ref`` moved by d = (dx, dy) px; ``peak`` the
-        correlation peak in robust sigmas of the surface (spectra from ``spectrum``)."""
-        x = cv2.mulSpectrums(cur, ref, 0, conjB=True)
-        mag = cv2.magnitude(x[..., 0], x[..., 1])
+        correlation peak in standard deviations of the surface (spectra from
+        ``spectrum``)."""
+        x = cur * np.conj(ref)
+        mag = np.abs(x)
         np.maximum(mag, np.float32(1e-20), out=mag)
         np.divide(self.lowpass, mag, out=mag)
-        cv2.multiply(x, cv2.merge([mag, mag]), dst=x)
-        r = cv2.idft(x, flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
+        x *= mag
+        r = scipy.fft.irfft2(x, s=self.shape)
         h, w = r.shape
-        _, top, _, (px, py) = cv2.minMaxLoc(r)
-        mean, std = cv2.meanStdDev(r)
-        dx = _peak_offset(r[py, (px - 1) % w], r[py, px], r[py, (px + 1) % w])
-        dy = _peak_offset(r[(py - 1) % h, px], r[py, px], r[(py + 1) % h, px])
+        py, px = np.unravel_index(int(np.argmax(r)), r.shape)
+        top = float(r[py, px])
+        mean, std = float(r.mean()), float(r.std())
+        dx = _peak_offset(r[py, (px - 1) % w], top, r[py, (px + 1) % w])
+        dy = _peak_offset(r[(py - 1) % h, px], top, r[(py + 1) % h, px])
         # the peak's index wraps: shifts beyond half the size are negative
         sx = px + dx - (w if px > w // 2 else 0)
         sy = py + dy - (h if py > h // 2 else 0)
-        return np.array([sx, sy]), (top - float(mean[0, 0])) / max(float(std[0, 0]), 1e-20)
+        return np.array([sx, sy]), (top - mean) / max(std, 1e-20)
 
 
 def _peak_offset(a: float, b: float, c: float) -> float:
@@ -222,20 +230,22 @@ class CameraMotion:
 
 def _textured_box(frame: np.ndarray, side: int) -> tuple[int, int]:
     """Top-left (x, y) of the ``side``-px square, on a grid of half steps inside the
-    central part of the frame, with the most gradient energy."""
+    central part of the frame, whose gradients are strongest in both directions: the
+    smaller eigenvalue of the summed structure tensor (Shi and Tomasi's criterion over
+    the square; a straight edge alone cannot say how far the scene moved along it)."""
     h, w = frame.shape
     gx = cv2.Sobel(frame, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(frame, cv2.CV_32F, 0, 1, ksize=3)
-    energy = cv2.integral(gx * gx + gy * gy)
+    sums = [cv2.integral(g) for g in (gx * gx, gy * gy, gx * gy)]
     step = max(1, side // 2)
-    best, at = -1.0, ((w - side) // 2, (h - side) // 2)
     # keep a margin of a quarter of the free space so the shifted crop stays inside
-    for y in range((h - side) // 4, h - side - (h - side) // 4 + 1, step):
-        for x in range((w - side) // 4, w - side - (w - side) // 4 + 1, step):
-            e = energy[y + side, x + side] - energy[y, x + side] - energy[y + side, x] + energy[y, x]
-            if e > best:
-                best, at = e, (x, y)
-    return at
+    ys = np.arange((h - side) // 4, h - side - (h - side) // 4 + 1, step)
+    xs = np.arange((w - side) // 4, w - side - (w - side) // 4 + 1, step)
+    y, x = np.meshgrid(ys, xs, indexing="ij")
+    a, b, c = (i[y + side, x + side] - i[y, x + side] - i[y + side, x] + i[y, x] for i in sums)
+    smaller = 0.5 * (a + b) - np.sqrt(0.25 * (a - b) ** 2 + c ** 2)
+    k = np.unravel_index(int(np.argmax(smaller)), smaller.shape)
+    return int(x[k]), int(y[k])
 
 
 def estimate_motion(frames) -> np.ndarray:

@@ -72,3 +72,29 @@ def test_psf_numbers_stated_in_the_docs():
     assert centred[9:12, 9:12].sum() / centred.sum() == pytest.approx(0.99, abs=0.005)
     assert render(10.5, 10.0).max() == pytest.approx(1 - 0.29, abs=0.005)
     assert render(10.5, 10.5).max() == pytest.approx(1 - 0.50, abs=0.005)
+
+
+def test_a_panning_shaking_camera_moves_the_scene_but_not_the_hot_pixels():
+    # the clouds do not drift against the ground here, so the whole scene moves with the
+    # camera (a drifting cloud field is a second motion, which the estimate then follows)
+    frames, truth = simulate("clutter", rng=4, n_frames=30, camera_pan=(1.5, -0.5),
+                             camera_jitter=0.5, dtype="float32", noise_sigma=0.5,
+                             cloud_drift=[0.0, 0.0])
+    from irdetect.camera import estimate_motion
+    c = estimate_motion(frames)
+    expect = np.arange(30)[:, None] * np.array([1.5, -0.5])
+    assert np.abs(c - expect).max() < 2 * 0.5 + 0.2           # pan within the jitter
+    # the targets move with the scene (their scene velocity plus the pan, jitter on top)
+    for j in np.unique(truth["target"]):
+        rows = truth[truth["target"] == j]
+        vx = np.polyfit(rows["frame"], rows["x"], 1)[0]
+        assert abs(vx - 1.5) <= 1.5 + 0.1                       # clutter: 0.5-1.5 px/frame
+    # hot pixels stay in the image: the brightest spikes over the 3x3 median are fixed
+    import cv2
+    spikes = [set(np.flatnonzero((f - cv2.medianBlur(f, 3)).ravel() > 30)) for f in frames[::10]]
+    assert len(spikes[0] & spikes[1] & spikes[2]) >= 20
+
+
+def test_camera_options_are_checked():
+    with pytest.raises(InputError, match="camera_jitter"):
+        load_scenario("wan2008", camera_jitter=-1.0)

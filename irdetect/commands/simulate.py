@@ -34,15 +34,24 @@ def add_arguments(p):
     p.add_argument("--speed", type=float, nargs=2, metavar=("MIN", "MAX"),
                    help="target speed range in px/frame")
     p.add_argument("--noise-sigma", type=float, help="noise standard deviation (grey levels)")
+    p.add_argument("--psf-sigma", type=float, help="target PSF sigma in px (0.6: a 3x3 px "
+                   "target; 2: about 9x9)")
+    p.add_argument("--camera-pan", type=float, nargs=2, metavar=("VX", "VY"),
+                   help="the camera pans: the scene moves VX, VY px/frame in the image")
+    p.add_argument("--camera-jitter", type=float, metavar="PX",
+                   help="the camera shakes: a random offset of up to PX px per frame and axis")
     p.add_argument("--dtype", choices=["uint8", "uint16", "float32"])
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
 
 
 def run(args) -> int:
     overrides = {k: getattr(args, k) for k in
-                 ("snr", "n_frames", "n_targets", "noise_sigma", "dtype")}
+                 ("snr", "n_frames", "n_targets", "noise_sigma", "dtype", "psf_sigma",
+                  "camera_jitter")}
     if args.speed:
         overrides["speed"] = list(args.speed)
+    if args.camera_pan:
+        overrides["camera_pan"] = list(args.camera_pan)
     if args.size:
         w, _, h = args.size.lower().partition("x")
         if not (w.isdigit() and h.isdigit()):
@@ -53,9 +62,10 @@ def run(args) -> int:
     if kind == "scans":
         raise InputError("a radar scans scenario: use irdetect simulate-scans", args.scenario)
     if kind == "harbour":
-        if any(overrides.get(k) is not None for k in ("snr", "n_targets", "dtype")):
-            raise InputError("--snr, --targets and --dtype do not apply to the harbour scene",
-                             args.scenario)
+        if any(overrides.get(k) is not None for k in ("snr", "n_targets", "dtype", "psf_sigma",
+                                                      "camera_jitter", "camera_pan")):
+            raise InputError("--snr, --targets, --dtype, --psf-sigma and --camera-* do not "
+                             "apply to the harbour scene", args.scenario)
         scenario = load_harbour(args.scenario, **overrides)
         blocks, truth = harbour_blocks(scenario, rng)
     else:

@@ -64,6 +64,11 @@ class SequenceScenario:
     horizon_tilt: float = 3.0       # degrees
     hot_pixels: int = 0
     hot_pixel_amplitude: float = 40.0
+    # the camera: the scene (background, clutter, targets) moves in the image by
+    # camera_pan px/frame plus a random offset of up to camera_jitter px per frame and
+    # axis; the sensor's hot pixels stay put in the image
+    camera_pan: tuple = (0.0, 0.0)
+    camera_jitter: float = 0.0
 
 
 def load_scenario(name: str | os.PathLike = "wan2008", **overrides) -> SequenceScenario:
@@ -94,7 +99,11 @@ def _validate(s: SequenceScenario, path=None) -> None:
     if s.directions and len(s.directions) != s.n_targets:
         raise InputError(f"directions has {len(s.directions)} angles for {s.n_targets} "
                          "targets", path)
-    span = max(s.speed) * (s.n_frames - 1)
+    if len(s.camera_pan) != 2 or not all(math.isfinite(v) for v in s.camera_pan):
+        raise InputError(f"camera_pan must be [vx, vy] px/frame, got {s.camera_pan}", path)
+    if not (math.isfinite(s.camera_jitter) and s.camera_jitter >= 0):
+        raise InputError(f"camera_jitter must be a number >= 0, got {s.camera_jitter}", path)
+    span = (max(s.speed) + math.hypot(*s.camera_pan)) * (s.n_frames - 1)
     if s.n_targets and min(s.width, s.height) - 2 * s.margin <= 0:
         raise InputError(f"frames of {s.width}x{s.height} leave no room inside the margin", path)
     if s.n_targets and span > 2 * max(s.width, s.height):
@@ -108,13 +117,16 @@ def target_paths(s: SequenceScenario, rng: np.random.Generator) -> np.ndarray:
     Returns
     -------
     ndarray of shape (n_targets, 4)
-        Rows (x0, y0, vx, vy): position at frame 0 (x = column, y = row) and px/frame.
+        Rows (x0, y0, vx, vy): position at frame 0 (x = column, y = row) and px/frame in
+        the image (the target's speed in the scene plus ``camera_pan``; the camera's
+        jitter comes on top, ``camera_offsets``).
     """
     out = np.zeros((s.n_targets, 4))
     for j in range(s.n_targets):
         speed = rng.uniform(*s.speed)
         angle = math.radians(s.directions[j]) if s.directions else rng.uniform(0, 2 * math.pi)
-        vx, vy = speed * math.cos(angle), speed * math.sin(angle)
+        vx = speed * math.cos(angle) + s.camera_pan[0]
+        vy = speed * math.sin(angle) + s.camera_pan[1]
         dx, dy = vx * (s.n_frames - 1), vy * (s.n_frames - 1)
         lo_x, hi_x = s.margin - min(dx, 0), s.width - 1 - s.margin - max(dx, 0)
         lo_y, hi_y = s.margin - min(dy, 0), s.height - 1 - s.margin - max(dy, 0)
@@ -125,35 +137,59 @@ def target_paths(s: SequenceScenario, rng: np.random.Generator) -> np.ndarray:
     return out
 
 
-def truth_table(s: SequenceScenario, paths: np.ndarray) -> np.ndarray:
-    """Ground truth rows (``tables.TRUTH``) for every target in every frame it is inside."""
+def camera_offsets(s: SequenceScenario, rng: np.random.Generator) -> np.ndarray:
+    """The camera's image offsets (T, 2): a scene point at p in frame 0 is at p + C_t in
+    frame t (``camera_pan`` t plus a uniform jitter of +-``camera_jitter`` px per axis,
+    relative to frame 0's)."""
+    t = np.arange(s.n_frames, dtype=float)[:, None]
+    c = t * np.asarray(s.camera_pan, float)[None, :]
+    if s.camera_jitter > 0:
+        jit = rng.uniform(-s.camera_jitter, s.camera_jitter, (s.n_frames, 2))
+        c += jit - jit[0]
+    return c
+
+
+def truth_table(s: SequenceScenario, paths: np.ndarray,
+                camera: np.ndarray | None = None) -> np.ndarray:
+    """Ground truth rows (``tables.TRUTH``) for every target in every frame it is inside
+    (image positions: ``paths`` plus the camera's jitter, ``camera`` minus its pan)."""
     frames = np.arange(s.n_frames)
     n = len(paths)
     f = np.repeat(frames, n)
     j = np.tile(np.arange(n), s.n_frames)
     x = paths[j, 0] + paths[j, 2] * f
     y = paths[j, 1] + paths[j, 3] * f
+    if camera is not None:
+        jx, jy = (camera - frames[:, None] * np.asarray(s.camera_pan, float)).T
+        x, y = x + jx[f], y + jy[f]
     inside = (x >= 0) & (x <= s.width - 1) & (y >= 0) & (y <= s.height - 1)
     return tables.from_columns(tables.TRUTH, frame=f[inside], target=j[inside], x=x[inside],
                                y=y[inside], amplitude=np.full(inside.sum(), s.snr * s.noise_sigma))
 
 
-def _static_clutter(s: SequenceScenario, rng: np.random.Generator) -> np.ndarray:
-    h, w = s.height, s.width
+def _static_clutter(s: SequenceScenario, rng: np.random.Generator,
+                    pad: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(scene, sensor): the background and horizon over the frame padded by ``pad`` px
+    on every side (the scene the camera moves over), and the hot pixels (frame-sized)."""
+    h, w = s.height + 2 * pad, s.width + 2 * pad
     field = np.full((h, w), s.background, np.float32)
     if s.horizon_amplitude:
-        yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-        edge = s.horizon_row * h + xx * math.tan(math.radians(s.horizon_tilt))
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float32) - pad
+        edge = s.horizon_row * s.height + xx * math.tan(math.radians(s.horizon_tilt))
         field += s.horizon_amplitude * 0.5 * (1 + np.tanh((yy - edge) / 1.6))  # logistic, 0.8 px
+    sensor = np.zeros((s.height, s.width), np.float32)
     if s.hot_pixels:
-        idx = rng.choice(h * w, size=min(s.hot_pixels, h * w), replace=False)
-        field.reshape(-1)[idx] += s.hot_pixel_amplitude
-    return field
+        idx = rng.choice(s.height * s.width, size=min(s.hot_pixels, s.height * s.width),
+                         replace=False)
+        sensor.reshape(-1)[idx] += s.hot_pixel_amplitude
+    return field, sensor
 
 
-def _cloud_field(s: SequenceScenario, rng: np.random.Generator) -> tuple[np.ndarray, int]:
-    """A smooth random field of peak-to-peak ``cloud_amplitude``, padded for the drift."""
-    pad = int(math.ceil(max(abs(v) for v in s.cloud_drift) * s.n_frames)) + 2
+def _cloud_field(s: SequenceScenario, rng: np.random.Generator,
+                 camera_pad: int = 0) -> tuple[np.ndarray, int]:
+    """A smooth random field of peak-to-peak ``cloud_amplitude``, padded for the drift
+    and the camera's motion."""
+    pad = int(math.ceil(max(abs(v) for v in s.cloud_drift) * s.n_frames)) + 2 + camera_pad
     h, w = s.height + 2 * pad, s.width + 2 * pad
     field = np.zeros((h, w), np.float32)
     for octave in range(3):  # three octaves: cloud banks with softer detail inside
@@ -178,9 +214,13 @@ def simulate_blocks(s: SequenceScenario, rng=None, *, block: int = 256):
     """
     rng = np.random.default_rng(rng)
     paths = target_paths(s, rng)
-    truth = truth_table(s, paths)
-    static = _static_clutter(s, rng)
-    cloud = _cloud_field(s, rng) if s.cloud_amplitude else None
+    moving = s.camera_jitter > 0 or any(s.camera_pan)
+    camera = camera_offsets(s, rng) if moving else None
+    truth = truth_table(s, paths, camera)
+    # the scene is drawn padded by the camera's largest offset and sampled per frame
+    pad = int(math.ceil(np.abs(camera).max())) + 2 if moving else 0
+    scene, sensor = _static_clutter(s, rng, pad)
+    cloud = _cloud_field(s, rng, pad) if s.cloud_amplitude else None
     amp = s.snr * s.noise_sigma
     half = int(math.ceil(4 * s.psf_sigma))
 
@@ -189,16 +229,25 @@ def simulate_blocks(s: SequenceScenario, rng=None, *, block: int = 256):
             n = min(block, s.n_frames - start)
             out = rng.standard_normal((n, s.height, s.width), dtype=np.float32)
             out *= s.noise_sigma
-            out += static
+            out += sensor
             for i in range(n):
                 t = start + i
+                cx, cy = (camera[t] if moving else (0.0, 0.0))
+                if moving:
+                    # the scene point at p is at p + C_t in the image
+                    out[i] += cv2.getRectSubPix(scene, (s.width, s.height),
+                                                (pad + (s.width - 1) / 2 - cx,
+                                                 pad + (s.height - 1) / 2 - cy))
+                else:
+                    out[i] += scene
                 if cloud is not None:
-                    field, pad = cloud
-                    cx = pad + s.cloud_drift[0] * t + (s.width - 1) / 2
-                    cy = pad + s.cloud_drift[1] * t + (s.height - 1) / 2
-                    out[i] += cv2.getRectSubPix(field, (s.width, s.height), (cx, cy))
-                for x0, y0, vx, vy in paths:
-                    _add_psf(out[i], x0 + vx * t, y0 + vy * t, amp, s.psf_sigma, half)
+                    field, cpad = cloud
+                    fx = cpad + s.cloud_drift[0] * t + (s.width - 1) / 2 - cx
+                    fy = cpad + s.cloud_drift[1] * t + (s.height - 1) / 2 - cy
+                    out[i] += cv2.getRectSubPix(field, (s.width, s.height), (fx, fy))
+                rows = truth[truth["frame"] == t]
+                for x, y in zip(rows["x"], rows["y"]):
+                    _add_psf(out[i], x, y, amp, s.psf_sigma, half)
             yield _to_dtype(out, s.dtype)
 
     return render(), truth
