@@ -27,14 +27,22 @@ def frames_needed(n_combined: int, *, length: int = 12, step: int = 12) -> int:
     return (n_combined - 1) * step + length
 
 
-def combine(frames, *, length: int = 12, step: int = 12, projection: str = "dp",
-            dp_radius: int = 1, dp_decay: float = 0.95, dp_smooth: float = 0.6) -> np.ndarray:
+def combine(frames, camera=None, *, length: int = 12, step: int = 12,
+            projection: str = "dp", dp_radius: int = 1, dp_decay: float = 0.95,
+            dp_smooth: float = 0.6) -> np.ndarray:
     """Project windows of ``length`` frames, every ``step`` frames, into combined frames.
 
     Parameters
     ----------
     frames : ndarray of shape (T, H, W)
         Suppressed frames.
+    camera : ndarray of shape (T, 2), optional
+        ``dp`` only: the camera's image offsets (x, y) px of the frames
+        (``irdetect.camera``). The merit then follows the scene: before each frame's
+        dilation it is shifted by the camera's motion since the last frame (whole
+        pixels: the difference of the rounded offsets), so ``dp_radius`` bounds the
+        target's speed against the scene, not in the image. The combined frame stays in
+        the image coordinates of the window's last frame.
     length : int
         Frames per combined frame (paper: 12).
     step : int
@@ -92,15 +100,27 @@ def combine(frames, *, length: int = 12, step: int = 12, projection: str = "dp",
     starts = window_starts(len(arr), length=length, step=step)
     out = np.empty((len(starts),) + arr.shape[1:], dtype=np.float32)
     dp = (int(dp_radius), float(dp_decay), float(dp_smooth))
+    moves = None
+    if camera is not None:
+        cam = np.asarray(camera, np.float64)
+        if cam.shape != (len(arr), 2) or not np.isfinite(cam).all():
+            raise ValueError(f"camera must be finite offsets of shape ({len(arr)}, 2), "
+                             f"got {cam.shape}")
+        if projection != "dp":
+            raise ValueError(f"camera needs projection 'dp', got {projection!r}")
+        # whole-pixel motion of the scene in the image from each frame to the next
+        moves = np.diff(np.rint(cam), axis=0, prepend=np.rint(cam[:1])).astype(np.int64)
     for i, s in enumerate(starts):
-        _project(arr[s:s + length], projection, out[i], dp)
+        _project(arr[s:s + length], projection, out[i], dp,
+                 None if moves is None else moves[s:s + length])
     return out
 
 
-def _dp(block: np.ndarray, radius: int, decay: float, smooth: float, out: np.ndarray) -> None:
+def _dp(block: np.ndarray, radius: int, decay: float, smooth: float, out: np.ndarray,
+        moves=None) -> None:
     kern = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
     merit = None
-    for frame in block:
+    for t, frame in enumerate(block):
         f = np.asarray(frame, dtype=np.float32)
         if smooth > 0:
             f = cv2.GaussianBlur(f, (0, 0), smooth, borderType=cv2.BORDER_REFLECT)
@@ -108,14 +128,25 @@ def _dp(block: np.ndarray, radius: int, decay: float, smooth: float, out: np.nda
             merit = f.copy()
         else:
             merit = cv2.dilate(merit, kern, borderType=cv2.BORDER_REPLICATE)
+            if moves is not None and moves[t].any():
+                merit = _shifted(merit, int(moves[t, 0]), int(moves[t, 1]))
             merit *= decay
             merit += f
     out[...] = merit
 
 
-def _project(block: np.ndarray, projection: str, out: np.ndarray, dp=(1, 0.95, 0.6)) -> None:
+def _shifted(m: np.ndarray, dx: int, dy: int) -> np.ndarray:
+    """``m`` moved by (dx, dy) whole px (out[y, x] = m[y - dy, x - dx]); what comes in
+    from outside is the border pixel (the merit's replicate border)."""
+    h, w = m.shape
+    return cv2.warpAffine(m, np.float32([[1, 0, dx], [0, 1, dy]]), (w, h),
+                          flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+
+
+def _project(block: np.ndarray, projection: str, out: np.ndarray, dp=(1, 0.95, 0.6),
+             moves=None) -> None:
     if projection == "dp":
-        _dp(block, *dp, out)
+        _dp(block, *dp, out, moves)
     elif projection == "max":
         np.max(block, axis=0, out=out)
     elif projection == "mean":

@@ -83,6 +83,12 @@ class Evidence:
     leads : tuple of floats
         Frames of motion by which the fused points may trail their targets; the search
         starts from each (``DP_LEADS`` for the ``dp`` projection, (0,) otherwise).
+    shift : ndarray of shape (F, 2), optional
+        Tracks in scene coordinates (beyond the paper): the camera's image offset (x, y)
+        px of each frame (``irdetect.camera``), added to a track's position when its
+        frame is sampled, so a track straight in the scene is followed through a
+        panning or shaking camera; points, positions and velocities are then scene
+        coordinates (image coordinates minus the offset). None: image coordinates.
     """
 
     frames: object
@@ -91,12 +97,13 @@ class Evidence:
     report: tuple
     sigma: float
     leads: tuple = (0.0,)
+    shift: np.ndarray | None = None
 
 
-def _frame_blocks(evidence: Evidence) -> tuple[list, np.ndarray]:
+def _frame_blocks(evidence: Evidence) -> tuple[list, np.ndarray, np.ndarray | None]:
     """The evidence frames as C-contiguous float32 blocks (F_j, H, W) (the pipeline's
-    blocks in place where they are float32 already), and each frame's time relative to
-    the evidence's middle frame, float32 (F,)."""
+    blocks in place where they are float32 already), each frame's time relative to the
+    evidence's middle frame, float32 (F,), and its shift (F, 2) float32 or None."""
     frames = evidence.frames
     if isinstance(frames, np.ndarray):
         frames = [frames]
@@ -104,7 +111,8 @@ def _frame_blocks(evidence: Evidence) -> tuple[list, np.ndarray]:
         frames = [np.stack(frames)]
     blocks = [np.ascontiguousarray(b, dtype=np.float32) for b in frames]
     t = np.asarray(evidence.index, np.float64)
-    return blocks, (t - t.mean()).astype(np.float32)
+    shift = None if evidence.shift is None else np.asarray(evidence.shift, np.float32)
+    return blocks, (t - t.mean()).astype(np.float32), shift
 
 
 #: the ``dp`` merit's fused point trails its target: the merit of the path's recent
@@ -217,7 +225,7 @@ def track_significance(evidence: Evidence, points: np.ndarray, screen: float = -
     p = np.asarray(points, np.float64).reshape(-1, 3, 2)
     if len(p) == 0:
         return np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2))
-    frames, dts = _frame_blocks(evidence)
+    frames, dts, shift = _frame_blocks(evidence)
     n_f = len(dts)
     tm = float(np.mean(evidence.index))
     times = np.asarray(evidence.times, np.float64)
@@ -231,7 +239,7 @@ def track_significance(evidence: Evidence, points: np.ndarray, screen: float = -
     grid = np.tile(_COARSE * _GRID, (len(evidence.leads), 1))
     for r in _chunks(np.arange(len(p)), frames, len(grid) * n_f):
         cc = c[r, None, :] + v[r, None, :] * lead[None, :, None] + grid[None]
-        total = _sample_sum(frames, dts, cc, v[r, None, :], bilinear=False)
+        total = _sample_sum(frames, dts, cc, v[r, None, :], bilinear=False, shift=shift)
         best = total.argmax(1)
         k = np.arange(len(r))
         c[r], z[r] = cc[k, best], total[k, best] / norm
@@ -241,11 +249,13 @@ def track_significance(evidence: Evidence, points: np.ndarray, screen: float = -
         for _ in range(REFINE_ROUNDS):
             if len(rows) == 0:
                 break
-            rows = np.concatenate([_climb(frames, dts, r, c, v, z, norm, dc * _GRID, dv * _GRID)
+            rows = np.concatenate([_climb(frames, dts, r, c, v, z, norm, dc * _GRID,
+                                          dv * _GRID, shift)
                                    for r in _chunks(rows, frames, 2 * len(_GRID) * n_f)])
         if len(rows):
             # still moving after the last round: the statistic where c, v are now
-            z[rows] = _sample_sum(frames, dts, c[rows, None], v[rows, None], True)[:, 0] / norm
+            z[rows] = _sample_sum(frames, dts, c[rows, None], v[rows, None], True,
+                                  shift)[:, 0] / norm
     return z, c, v
 
 
@@ -256,7 +266,7 @@ def _chunks(rows, frames, samples_per_row):
     return [rows[a:a + step] for a in range(0, len(rows), step)]
 
 
-def _climb(frames, dts, rows, c, v, z, norm, dcs, dvs) -> np.ndarray:
+def _climb(frames, dts, rows, c, v, z, norm, dcs, dvs, shift=None) -> np.ndarray:
     """One round of the hill climb of ``track_significance`` for ``rows``.
 
     Samples the positions c + dcs at velocity v and the velocities v + dvs at position
@@ -267,7 +277,7 @@ def _climb(frames, dts, rows, c, v, z, norm, dcs, dvs) -> np.ndarray:
     r, nc, nv = rows, len(dcs), len(dvs)
     cc = np.concatenate([c[r, None] + dcs, np.repeat(c[r, None], nv, 1)], 1)
     vv = np.concatenate([np.repeat(v[r, None], nc, 1), v[r, None] + dvs], 1)
-    total = _sample_sum(frames, dts, cc, vv, bilinear=True)
+    total = _sample_sum(frames, dts, cc, vv, bilinear=True, shift=shift)
     bc, bv = total[:, :nc].argmax(1), nc + total[:, nc:].argmax(1)
     k = np.arange(len(r))
     z[r] = np.maximum(total[k, bc], total[k, bv]) / norm
@@ -296,9 +306,9 @@ def ring_significance(evidence: Evidence, c: np.ndarray, v: np.ndarray) -> np.nd
 def _parallel_sums(evidence: Evidence, c, v, offsets):
     """Track sums (n, R) float32 of the tracks c + offsets[r], velocity v (offsets (R, 2)
     px), bilinear, and the number of frames F they sum over."""
-    frames, dts = _frame_blocks(evidence)
+    frames, dts, shift = _frame_blocks(evidence)
     cc = c[:, None, :] + offsets[None]
-    return _sample_sum(frames, dts, cc, v[:, None, :], bilinear=True), len(dts)
+    return _sample_sum(frames, dts, cc, v[:, None, :], bilinear=True, shift=shift), len(dts)
 
 
 #: the local test of a verified track (``local_significance``): parallel tracks at these
@@ -367,8 +377,9 @@ def _budget(blocks) -> int:
     return max(CHUNK, min(CHUNK_MAX, sum(b.size for b in blocks) // 8))
 
 
-def _sample_sum(blocks, dts, cc, vv, bilinear):
-    """Track sums: sum_f S_f(c + v dts[f]) over the evidence frames, per hypothesis.
+def _sample_sum(blocks, dts, cc, vv, bilinear, shift=None):
+    """Track sums: sum_f S_f(c + v dts[f] + shift[f]) over the evidence frames, per
+    hypothesis.
 
     Parameters
     ----------
@@ -382,6 +393,8 @@ def _sample_sum(blocks, dts, cc, vv, bilinear):
         Velocities (x, y) in px/frame.
     bilinear : bool
         Bilinear interpolation, else the nearest pixel.
+    shift : ndarray of shape (F, 2), optional
+        Each frame's offset (x, y) added to the track's position (``Evidence.shift``).
 
     Returns
     -------
@@ -423,6 +436,9 @@ def _sample_sum(blocks, dts, cc, vv, bilinear):
         mx += x0[sl]
         np.multiply(vy[sl], dt, out=my)
         my += y0[sl]
+        if shift is not None:
+            mx += shift[:, 0, None, None]
+            my += shift[:, 1, None, None]
         np.clip(my, 0, h - 1, out=my)
         my += rows
         first = 0

@@ -98,7 +98,9 @@ def detect(combined, *, window: int = 3, k: float = 2.5, sigma: str = "local",
     combined : ndarray of shape (H, W)
         A combined frame (``irdetect.combine.combine``) of suppressed frames.
     window : int
-        Odd length in pixels of the 4 line hypotheses through each pixel (>= 3).
+        Odd length in pixels of the 4 line hypotheses through each pixel (>= 3); 1 (beyond
+        the paper) tests each pixel's own value, one direction (index 0): the fast band's
+        merit, whose dilations make neighbouring pixels alike, is a point test.
     k : float
         Threshold in robust sigmas of the merged response (> 0).
     sigma : {"local", "global"}
@@ -147,7 +149,7 @@ def detect(combined, *, window: int = 3, k: float = 2.5, sigma: str = "local",
     arr = np.asarray(combined)
     if arr.ndim != 2 or arr.size == 0:
         raise ValueError(f"combined must have shape (H, W), got {arr.shape}")
-    _check_window(window)
+    _check_window(window, smallest=1)
     if not np.isfinite(k) or k <= 0:
         raise ValueError(f"k must be a positive number, got {k!r}")
     if sigma not in SIGMA_MODES:
@@ -170,12 +172,16 @@ def detect(combined, *, window: int = 3, k: float = 2.5, sigma: str = "local",
 
 def _detect(img, window, k, sigma, tile, directions, sample=2):
     h, w = img.shape
-    kernels = line_kernels(window, directions)
-    # every direction's merged sum in one stack, so the tile statistics of all of them
-    # come from one sort
-    s = np.empty((len(kernels), h, w), np.float32)
-    for d, kern in enumerate(kernels):
-        cv2.filter2D(img, cv2.CV_32F, kern, dst=s[d], borderType=cv2.BORDER_REFLECT)
+    if window == 1:
+        # no line to sum along: the frame's own values, one "direction"
+        s = img[None].copy()
+    else:
+        kernels = line_kernels(window, directions)
+        # every direction's merged sum in one stack, so the tile statistics of all of
+        # them come from one sort
+        s = np.empty((len(kernels), h, w), np.float32)
+        for d, kern in enumerate(kernels):
+            cv2.filter2D(img, cv2.CV_32F, kern, dst=s[d], borderType=cv2.BORDER_REFLECT)
     best = best_dir = better = change = None
     for d, (loc, scale) in enumerate(_location_scale(s, sigma, tile, sample)):
         z = s[d]
@@ -226,6 +232,6 @@ def _location_scale(s: np.ndarray, sigma: str, tile: int, sample: int = 2):
     return out
 
 
-def _check_window(window):
-    if int(window) != window or window < 3 or window % 2 == 0:
-        raise ValueError(f"window must be an odd integer >= 3, got {window!r}")
+def _check_window(window, smallest: int = 3):
+    if int(window) != window or window < smallest or window % 2 == 0:
+        raise ValueError(f"window must be an odd integer >= {smallest}, got {window!r}")
