@@ -30,13 +30,18 @@ import scipy.fft
 WORK_PX = 64
 #: side of the full-resolution crop the coarse shift is refined on (at most half the
 #: frame's shorter side)
-CROP_PX = 64
+CROP_PX = 128
+#: a block whose offsets stay within this many px is a still camera (``update``)
+STILL_STEP = 0.25
 #: refinement steps on the full-resolution crop (``CameraMotion._refine``)
 REFINE_STEPS = 1
 #: matches whose peak stands less than this many robust sigmas above the correlation
 #: surface are not trusted (featureless frames, a blurred jump): the frame keeps the
 #: previous frame's offset and the keyframe stays
 MIN_PEAK = 7.0
+#: the smooth level (Gaussian of this sigma in px) removed from a frame before its
+#: Hanning window
+DETREND = 8.0
 #: the cross-power spectrum's weight: a Gaussian low-pass of this sigma in cycles per px
 LOWPASS = 0.1
 
@@ -55,7 +60,10 @@ class _Correlator:
         self.window = cv2.createHanningWindow((w, h), cv2.CV_32F)
         fy = np.fft.fftfreq(h).astype(np.float32)[:, None]
         fx = np.fft.rfftfreq(w).astype(np.float32)[None, :]
-        self.lowpass = np.exp(-(fx ** 2 + fy ** 2) / (2 * LOWPASS ** 2)).astype(np.float32)
+        f2 = fx ** 2 + fy ** 2
+        self.lowpass = np.exp(-f2 / (2 * LOWPASS ** 2)).astype(np.float32)
+        # the band whose cross power stands for the noise: above 0.35 cycles/px
+        self.high = f2 > 0.35 ** 2
 
     def spectrum(self, a: np.ndarray) -> np.ndarray:
         """Spectrum of a frame (h, w) after a 3x3 median (a hot pixel or any other
@@ -71,9 +79,15 @@ class _Correlator:
         ``spectrum``)."""
         x = cur * np.conj(ref)
         mag = np.abs(x)
-        np.maximum(mag, np.float32(1e-20), out=mag)
-        np.divide(self.lowpass, mag, out=mag)
-        x *= mag
+        # phase correlation where the frames share signal, less weight where the cross
+        # power is at the level of the noise (its median over the highest frequencies):
+        # x |x| / (|x|^2 + n^2), by the low-pass
+        noise = float(np.median(mag[self.high])) if self.high.any() else 0.0
+        weight = mag * mag
+        weight += np.float32(noise * noise + 1e-30)
+        np.divide(mag, weight, out=weight)
+        weight *= self.lowpass
+        x *= weight
         r = scipy.fft.irfft2(x, s=self.shape)
         h, w = r.shape
         py, px = np.unravel_index(int(np.argmax(r)), r.shape)
@@ -139,9 +153,11 @@ class CameraMotion:
         small = _reduce(np.zeros((h, w), np.float32), self.levels).shape
         self.scale = 2.0 ** self.levels
         self.coarse = _Correlator(small) if min(small) >= 8 else None
-        # the crop leaves room for shifts up to the keyframe's limit on either side
+        # the crop leaves room for shifts up to the keyframe's limit on either side; frames
+        # reduced once or not at all are refined on their reduced frame alone (0.05-0.1
+        # px there)
         side = min(CROP_PX, min(h, w) // 2)
-        self.fine = _Correlator((side, side)) if side >= 16 else None
+        self.fine = self.levels > 1 and side >= 16
         self.side = side
         # px: the keyframe moves on beyond (the refinement's crop stays inside: the crop
         # is chosen at least (H - side) / 4 px from the borders)
@@ -150,14 +166,42 @@ class CameraMotion:
         self.key = None                        # the keyframe (``_key``)
         self.previous = None                   # (offset, reduced spectrum) of the last frame
         self.last = np.zeros(2)
+        self.still = False                     # the last block's offsets did not move
+        self.matched = False                   # ... and some of its frames matched
 
     def update(self, frames) -> np.ndarray:
         """Offsets C_t (n, 2) = (dx, dy) of the next ``frames`` (n, H, W), relative to the
-        first frame ever given (a scene point at p in that frame is at p + C_t)."""
-        out = np.zeros((len(frames), 2))
+        first frame ever given (a scene point at p in that frame is at p + C_t).
+
+        While the camera holds still (the last block's offsets within ``STILL_STEP`` px
+        of each other), a block's last frame is matched first; when it too is within
+        ``STILL_STEP`` of the last offset the block's frames all keep that offset (one
+        match for the block instead of one per frame)."""
+        n = len(frames)
+        if self.still and n > 2 and self.key is not None:
+            probe = self._probe(frames[-1])
+            # a weak match on frames that gave none before either (featureless: noise,
+            # flat sky) says as little as matching every frame would
+            if (probe is None and not self.matched) or (
+                    probe is not None and np.abs(probe - self.last).max() < STILL_STEP):
+                return np.repeat(self.last[None], n, axis=0)
+        out = np.zeros((n, 2))
+        self.matched = False
         for i, frame in enumerate(frames):
             out[i] = self._one(frame)
+        self.still = bool(np.ptp(out, axis=0).max() < STILL_STEP) if n else self.still
         return out
+
+    def _probe(self, frame):
+        """The offset of ``frame`` against the keyframe (None when the match is weak),
+        leaving the estimator's state as it was."""
+        if self.coarse is None:
+            return None
+        reduced = _reduce(frame, self.levels)
+        if not np.isfinite(reduced).all() or reduced.std() <= 0:
+            return None
+        d = self._match(self.key, self.coarse.spectrum(reduced), frame, reduced)
+        return None if d is None else self.key[0] + d
 
     def _one(self, frame) -> np.ndarray:
         self.n += 1
@@ -168,63 +212,125 @@ class CameraMotion:
             return self.last.copy()
         small = self.coarse.spectrum(reduced)
         if self.key is not None:
-            d = self._match(self.key, small, frame)
-            base = self.key[0]
-            if d is None and self.previous is not None:
-                # a weak match against the keyframe (too little overlap left, a blurred
-                # jump): one coarse step from the previous frame, which is kept as the
-                # next keyframe
-                d, base, self.key = self._match(self.previous, small, None), self.previous[0], None
+            d = self._match(self.key, small, frame, reduced)
             if d is not None:
-                self.last = base + d
+                self.matched = True
+                self.last = self.key[0] + d
                 if np.abs(d).max() > self.limit:
                     self.key = None
+            elif self.previous is not None:
+                # a weak match against the keyframe (too little overlap left, a blurred
+                # jump): one coarse step from the previous frame, and this frame is the
+                # next keyframe; when that fails too (a featureless frame) nothing moves
+                d = self._match(self.previous, small, None, reduced)
+                if d is not None:
+                    self.last = self.previous[0] + d
+                    self.key = None
         if self.key is None:
-            self.key = self._key(frame, small)
+            self.key = self._key(frame, small, reduced)
         self.previous = (self.last.copy(), small)
         return self.last.copy()
 
-    def _key(self, frame, small):
-        """A new keyframe: (offset, reduced spectrum, crop box, crop spectrum)."""
-        if self.fine is None:
-            return (self.last.copy(), small, None, None)
+    def _key(self, frame, small, reduced):
+        """A new keyframe: (offset, reduced spectrum, crop box, crop spectrum, the
+        reduced frame's ``_Gradients``)."""
+        lk = _Gradients(reduced)
+        if not self.fine:
+            return (self.last.copy(), small, None, None, lk)
         f = np.asarray(frame, np.float32)
         x0, y0 = _textured_box(f, self.side)
-        crop = self.fine.spectrum(f[y0:y0 + self.side, x0:x0 + self.side].copy())
-        return (self.last.copy(), small, (x0, y0), crop)
+        crop = _Gradients(f[y0:y0 + self.side, x0:x0 + self.side])
+        return (self.last.copy(), small, (x0, y0), crop, lk)
 
-    def _match(self, ref, small, frame):
-        """Shift of ``frame`` (spectrum ``small`` of it reduced) against the reference
-        ``ref`` (coarse only when ``frame`` is None or ``ref`` has no crop), or None when
-        the match is weak."""
+    def _match(self, ref, small, frame, reduced):
+        """Shift of ``frame`` (``reduced``: it reduced, ``small``: that one's spectrum)
+        against the reference ``ref`` (coarse only when ``frame`` is None or ``ref`` has
+        no crop), or None when the match is weak. The coarse shift is measured twice:
+        the second time on the reduced frame moved back by the first estimate, which
+        removes most of the sub-pixel estimate's bias (smooth scenes, whose crop has too
+        little texture to refine on, keep this one)."""
         d, peak = self.coarse.shift(ref[1], small)
         if peak < MIN_PEAK or not np.isfinite(d).all():
             return None
+        if len(ref) > 4:
+            d = ref[4].refine(reduced, d)
         d = d * self.scale
-        if frame is not None and len(ref) > 2 and ref[2] is not None:
+        if frame is not None and ref[2] is not None:
             d = self._refine(ref, frame, d)
         return d
 
     def _refine(self, ref, frame, d) -> np.ndarray:
-        """The coarse shift d refined on the keyframe's crop at full resolution: the
-        frame's crop is taken at the shifted position (bilinear) and the residual shift
-        measured against the keyframe's, ``REFINE_STEPS`` times (each step removes most
-        of the last one's sub-pixel bias)."""
+        """The coarse shift d refined at full resolution on the keyframe's crop: the
+        frame's crop at the whole-pixel shift, then the rest by ``_Gradients``."""
         (x0, y0), crop = ref[2], ref[3]
         h, w = self.shape
         s = self.side
-        for _ in range(REFINE_STEPS):
-            cx, cy = x0 + (s - 1) / 2 + d[0], y0 + (s - 1) / 2 + d[1]
-            if not (s / 2 <= cx <= w - 1 - s / 2 and s / 2 <= cy <= h - 1 - s / 2):
-                return d
-            # the crop's pixels and a margin, as float32, then the sub-pixel crop
-            ax, ay = max(0, int(cx - s / 2) - 1), max(0, int(cy - s / 2) - 1)
-            part = np.asarray(frame[ay:ay + s + 3, ax:ax + s + 3], np.float32)
-            cur = cv2.getRectSubPix(part, (s, s), (float(cx - ax), float(cy - ay)))
-            r, peak = self.fine.shift(crop, self.fine.spectrum(cur))
-            if peak < MIN_PEAK or np.abs(r).max() > s / 4:
-                return d
+        ix, iy = int(round(d[0])), int(round(d[1]))
+        x1, y1 = x0 + ix, y0 + iy
+        if not (0 <= x1 <= w - s and 0 <= y1 <= h - s):
+            return d
+        part = np.asarray(frame[y1:y1 + s, x1:x1 + s], np.float32)
+        return np.array([ix, iy]) + crop.refine(part, np.asarray(d) - (ix, iy))
+
+
+class _Gradients:
+    """Lucas-Kanade refinement of a translation against one reference frame.
+
+    Phase correlation finds the peak; on smooth scenes under noise (clouds: texture and
+    noise of the same size per pixel) its position is 1-2 px off, while the
+    least-squares fit of the residual to the reference's gradients,
+    [sum gx^2, sum gx gy; sum gx gy, sum gy^2] r = sum (g e), is the efficient estimate
+    of a small shift. The reference's gradients (of the frame smoothed by 1 px) and the
+    system's matrix are computed once per keyframe.
+    """
+
+    STEPS = 2
+
+    @staticmethod
+    def _band(a) -> np.ndarray:
+        """The frame smoothed by 1 px minus its level at ``DETREND`` px: the structure
+        that moves with the scene, without the sensor's vignetting or a sky gradient
+        that stay put in the image (they would hold the fit at zero shift)."""
+        a = np.ascontiguousarray(a, np.float32)
+        return (cv2.GaussianBlur(a, (0, 0), 1.0)
+                - cv2.GaussianBlur(a, (0, 0), DETREND, borderType=cv2.BORDER_REFLECT))
+
+    def __init__(self, ref: np.ndarray):
+        self.ref = self._band(ref)
+        self.gx = cv2.Sobel(self.ref, cv2.CV_32F, 1, 0, ksize=3) / 8.0
+        self.gy = cv2.Sobel(self.ref, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+
+    def refine(self, frame: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """The shift d (frame ~ reference moved by d) refined; d itself when the
+        gradients do not pin a shift down (a flat frame) or the fit runs away."""
+        h, w = self.ref.shape
+        cur = self._band(frame)
+        start = np.asarray(d, float)
+        d = start.copy()
+        for _ in range(self.STEPS):
+            back = cv2.warpAffine(cur, np.float32([[1, 0, -d[0]], [0, 1, -d[1]]]), (w, h),
+                                  flags=cv2.INTER_LINEAR + cv2.WARP_FILL_OUTLIERS,
+                                  borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+            m = int(np.ceil(np.abs(d).max())) + 2
+            if 2 * m >= min(h, w):
+                return start
+            e = (back - self.ref)[m:-m, m:-m]
+            gx, gy = self.gx[m:-m, m:-m], self.gy[m:-m, m:-m]
+            ok = np.isfinite(e)
+            e, gx, gy = e[ok], gx[ok], gy[ok]
+            sxx, sxy, syy = float(np.dot(gx, gx)), float(np.dot(gx, gy)), float(np.dot(gy, gy))
+            det = sxx * syy - sxy * sxy
+            # the gradients must pin both axes down (not one edge, not a flat frame)
+            if not det > 1e-6 * (sxx + syy) ** 2:
+                return start
+            bx, by = float(np.dot(gx, e)), float(np.dot(gy, e))
+            # back(x) = cur(x + d) ~ ref(x) - g r  =>  r = -A^-1 sum(g e)
+            r = -np.array([syy * bx - sxy * by, sxx * by - sxy * bx]) / det
             d = d + r
+            if np.abs(d - start).max() > 2.0:
+                return start
+            if np.abs(r).max() < 0.01:
+                break
         return d
 
 

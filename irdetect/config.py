@@ -76,6 +76,7 @@ class FuseConfig:
     d_min: float = 0.5
     min_members: int = 1
     peak_radius: int = 5
+    extent: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -91,6 +92,20 @@ class CorrelateConfig:
     verify: float = 6.5
     verify_local: float = 3.5
     screen: float = 0.4
+
+
+@dataclass(frozen=True)
+class FastConfig:
+    """The fast band (beyond the paper; docs/detection.md): a second ``dp`` merit per
+    window that follows the camera's motion with a wide radius, a point test on it, and
+    chains in scene coordinates, for targets up to ``radius`` px/frame against the scene
+    (``irdetect.pipeline``). ``radius = 0`` turns it off (the paper's single band)."""
+
+    radius: int = 6
+    k: float = 3.5
+    sigma: str = "global"
+    extent: float = 2.0
+    max_deviation: float = 20.0
 
 
 # --- track initiation (zhang2010, liang2015; issues 4, 5) -----------------------------
@@ -184,6 +199,7 @@ class ProcessConfig:
     detect: DetectConfig = field(default_factory=DetectConfig)
     fuse: FuseConfig = field(default_factory=FuseConfig)
     correlate: CorrelateConfig = field(default_factory=CorrelateConfig)
+    fast: FastConfig = field(default_factory=FastConfig)
     initiate: InitiateConfig = field(default_factory=InitiateConfig)
     track: TrackConfig = field(default_factory=TrackConfig)
 

@@ -16,7 +16,7 @@ from irdetect.tables import CANDIDATE, empty
 
 
 def fuse(detection: DirectionalDetection, combined, *, gap: int = 1, d_min: float = 0.5,
-         min_members: int = 1, peak_radius: int = 5) -> np.ndarray:
+         min_members: int = 1, peak_radius: int = 5, extent: float = 0.0) -> np.ndarray:
     """Group candidate pixels and fuse each group into one point.
 
     Parameters
@@ -39,6 +39,11 @@ def fuse(detection: DirectionalDetection, combined, *, gap: int = 1, d_min: floa
         Beyond the paper (0 = off): split a group around its local maxima of the CFAR
         response that are at least ``peak_radius`` px apart (each pixel goes to the
         nearest maximum), so two targets passing close by stay two points.
+    extent : float
+        Beyond the paper (0 = off; needs ``peak_radius`` > 0): only the pixels within
+        ``extent`` px of their group's maximum are its members, so a target inside a wide
+        region above the threshold (a bright target's bloom in the fast band's merit, a
+        clutter edge it sits on) is fused near its peak, not at the region's centroid.
 
     Returns
     -------
@@ -85,7 +90,10 @@ def fuse(detection: DirectionalDetection, combined, *, gap: int = 1, d_min: floa
         raise ValueError(f"min_members must be an integer >= 1, got {min_members!r}")
     if int(peak_radius) != peak_radius or peak_radius < 0:
         raise ValueError(f"peak_radius must be an integer >= 0, got {peak_radius!r}")
-    return _fuse(detection, values, int(gap), float(d_min), int(min_members), int(peak_radius))
+    if not np.isfinite(extent) or extent < 0:
+        raise ValueError(f"extent must be a number >= 0, got {extent!r}")
+    return _fuse(detection, values, int(gap), float(d_min), int(min_members), int(peak_radius),
+                 float(extent))
 
 
 def group_labels(mask: np.ndarray, gap: int) -> tuple[int, np.ndarray]:
@@ -110,8 +118,9 @@ def _components(mask: np.ndarray, gap: int) -> tuple[int, np.ndarray]:
 PEAK_RATIO = 0.5
 
 
-def _peak_labels(det: DirectionalDetection, idx, lab, radius: int) -> np.ndarray:
-    """Label of the nearest strong local maximum (plateaus merged) for each candidate pixel.
+def _peak_labels(det: DirectionalDetection, idx, lab, radius: int):
+    """Label of the nearest strong local maximum (plateaus merged) for each candidate
+    pixel, and the pixel's distance to it in px.
 
     ``idx`` are the candidates' flat (row-major) pixel indices, ``lab`` their group labels.
     """
@@ -138,12 +147,12 @@ def _peak_labels(det: DirectionalDetection, idx, lab, radius: int) -> np.ndarray
     np.maximum.at(group_max, group, peak_resp)
     strong = peak_resp >= PEAK_RATIO * group_max[group]
     ys, xs = np.divmod(idx, w)
-    _, near = cKDTree(centres[strong]).query(np.column_stack([xs, ys]))
-    return np.flatnonzero(strong)[near]
+    dist, near = cKDTree(centres[strong]).query(np.column_stack([xs, ys]))
+    return np.flatnonzero(strong)[near], dist
 
 
 def _fuse(det: DirectionalDetection, values: np.ndarray, gap: int, d_min: float,
-          min_members: int, peak_radius: int = 0) -> np.ndarray:
+          min_members: int, peak_radius: int = 0, extent: float = 0.0) -> np.ndarray:
     # flat indices of the candidates, row-major (the order of np.nonzero)
     idx = np.flatnonzero(det.mask)
     if idx.size == 0:
@@ -153,8 +162,11 @@ def _fuse(det: DirectionalDetection, values: np.ndarray, gap: int, d_min: float,
     lab = labels.reshape(-1)[idx]
     if peak_radius > 0:
         # a pixel's group is (its connected group, its nearest response maximum)
-        peak = _peak_labels(det, idx, lab, peak_radius)
+        peak, dist = _peak_labels(det, idx, lab, peak_radius)
         lab = lab.astype(np.int64) * (int(peak.max()) + 1) + peak
+        if extent > 0:
+            near = dist <= extent
+            idx, ys, xs, lab = idx[near], ys[near], xs[near], lab[near]
     # compact labels (dilation may create label ids without members)
     uniq, lab = np.unique(lab, return_inverse=True)
     g = len(uniq)

@@ -32,8 +32,8 @@ from irdetect import tables
 from irdetect.camera import CameraMotion
 from irdetect.combine import combine, frames_needed, window_starts
 from irdetect.config import ProcessConfig, to_json
-from irdetect.correlate import (DP_LEADS, Evidence, correlate, matched_frame, noise_level,
-                                standardise)
+from irdetect.correlate import (DP_LEADS, Correlation, Evidence, correlate, matched_frame,
+                                noise_level, standardise)
 from irdetect.detect import detect
 from irdetect.errors import InputError, refused_settings
 from irdetect.fuse import fuse
@@ -204,7 +204,8 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
             cand["frame_start"], cand["frame_end"] = s, s + cc.length - 1
             cand["combined_frame"] = k
             pending.append(_Pending(cand, cc.length if cc.projection == "dp" else 0,
-                                    matched, int(s), config.correlate.tolerance))
+                                    matched, int(s), config.correlate.tolerance,
+                                    reader.offsets[s:s + cc.length].copy()))
             log.debug("combined frame %d (frames %d-%d): %d candidate pixels, %d fused points",
                       k, s, s + cc.length - 1, n_pixels, len(cand))
             if k >= N_CORRELATE - 1:
@@ -233,12 +234,70 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
 
 
 def _correlate(triple, cc, params: "_StageParams", timings: dict | None):
-    """The correlation of 3 pending windows (``correlate`` with their evidence)."""
+    """The correlation of 3 pending windows (``correlate`` with their evidence), per band:
+    the paper's band in image coordinates, the fast band's points, tracks and evidence
+    in scene coordinates (image minus the camera's offset). Returns one Correlation
+    whose rows index the windows' whole tables and whose positions are image
+    coordinates."""
     t0 = time.perf_counter()
-    corr = correlate(*(p.table for p in triple), cc.step, _evidence(triple, cc),
-                     **params.correlate)
+    evidence = _evidence(triple, cc)
+    parts = [_band(triple, 0, cc.step, evidence, params.correlate)]
+    if params.fast:
+        scene = None if evidence is None else dataclasses.replace(
+            evidence, shift=np.concatenate([p.camera for p in triple])[
+                np.searchsorted(_frames_of(triple), evidence.index)], leads=FAST_LEADS)
+        parts.append(_band(triple, 1, cc.step, scene, params.fast_correlate, cc.length))
+    corr = parts[0] if len(parts) == 1 else Correlation(
+        segments=np.concatenate([c.segments for c in parts]),
+        index=np.concatenate([c.index for c in parts]),
+        positions=np.concatenate([c.positions for c in parts]),
+        significance=np.concatenate([c.significance for c in parts]))
     _lap(timings, "correlate", t0)
     return corr
+
+
+#: the fast band's merit keeps a target near its position in the window's last frame
+#: (its wide dilations do not let the path's past outweigh the present): the search of
+#: the verification starts 0-2 frames of motion ahead of the fused points
+FAST_LEADS = (0.0, 1.0)
+
+
+def _frames_of(triple) -> np.ndarray:
+    """The frame index of every row of the windows' camera offsets, in order."""
+    return np.concatenate([np.arange(p.start, p.start + len(p.camera)) for p in triple])
+
+
+def _band(triple, band: int, step: int, evidence, kwargs, length: int = 0) -> Correlation:
+    """``correlate`` on one band's points of 3 windows. Band 1 is in scene coordinates:
+    its points (the merit's, in the image of each window's last frame) lose that frame's
+    camera offset, and its verified positions get the offset at their report time."""
+    rows = [np.flatnonzero(p.table["band"] == band) for p in triple]
+    tables_ = [p.table[r] for p, r in zip(triple, rows)]
+    if band == 1:
+        for t, p in zip(tables_, triple):
+            t["x"] -= p.camera[length - 1, 0]
+            t["y"] -= p.camera[length - 1, 1]
+    corr = correlate(*tables_, step, evidence, **kwargs)
+    index = np.column_stack([r[corr.index[:, i]] for i, r in enumerate(rows)]) \
+        if len(corr.index) else corr.index
+    positions, segments = corr.positions, corr.segments
+    if band == 1 and len(segments):
+        frames = _frames_of(triple)
+        cam = np.concatenate([p.camera for p in triple])
+        positions = positions.copy()
+        for i, (p, (fx, fy)) in enumerate(zip(triple, (("x1", "y1"), ("x2", "y2"),
+                                                       ("x3", "y3")))):
+            at = p.start + (length - 1) / 2.0
+            positions[:, i, 0] += np.interp(at, frames, cam[:, 0])
+            positions[:, i, 1] += np.interp(at, frames, cam[:, 1])
+            segments[fx] += p.camera[length - 1, 0]
+            segments[fy] += p.camera[length - 1, 1]
+        # image velocity: the scene's plus the camera's mean motion over the windows
+        span = max(1, frames[-1] - frames[0])
+        segments["vx"] += (cam[-1, 0] - cam[0, 0]) / span
+        segments["vy"] += (cam[-1, 1] - cam[0, 1]) / span
+    return Correlation(segments=segments, index=index, positions=positions,
+                       significance=corr.significance)
 
 
 class _StageParams:
@@ -250,6 +309,17 @@ class _StageParams:
         self.detect = asdict(config.detect)
         self.fuse = asdict(config.fuse)
         self.correlate = asdict(config.correlate)
+        # the fast band: the same stages with a wide merit that follows the camera, a
+        # point test on it and chains in scene coordinates (needs the dp projection and
+        # the verification, which controls its loose first stage's false alarms)
+        fast = config.fast
+        self.fast = (fast.radius > 0 and config.combine.projection == "dp"
+                     and config.correlate.verify > 0)
+        self.fast_combine = {**self.combine, "dp_radius": fast.radius}
+        self.fast_detect = {**self.detect, "window": 1, "k": fast.k, "sigma": fast.sigma}
+        self.fast_fuse = {**self.fuse, "extent": fast.extent}
+        self.fast_correlate = {**self.correlate, "max_speed": float(fast.radius),
+                               "max_deviation": fast.max_deviation}
         # the verification of chains needs the matched residual frames of each window
         self.matched = config.correlate.verify > 0
         self.psf = config.combine.dp_smooth
@@ -273,9 +343,13 @@ def _front(block, previous, params: _StageParams, timings: dict | None, followin
         # residual once, in place, and tell both stages it is done (same values)
         for r in residual:
             cv2.GaussianBlur(r, (0, 0), params.psf, dst=r, borderType=cv2.BORDER_REFLECT)
-        comb = combine(residual, **{**params.combine, "dp_smooth": 0.0})[0]
-    else:
-        comb = combine(residual, **params.combine)[0]
+    done = {"dp_smooth": 0.0} if presmoothed else {}
+    comb = combine(residual, **{**params.combine, **done})[0]
+    fast = None
+    if params.fast:
+        n_prev = 0 if previous is None else len(previous)
+        window_camera = None if camera is None else camera[n_prev:n_prev + len(residual)]
+        fast = combine(residual, window_camera, **{**params.fast_combine, **done})[0]
     matched = None
     if params.matched:
         # the residuals become the matched frames in place (no second window of frames)
@@ -285,8 +359,13 @@ def _front(block, previous, params: _StageParams, timings: dict | None, followin
     del residual
     t = _lap(timings, "combine", t)
     det = detect(comb, **params.detect)
+    det_fast = None if fast is None else detect(fast, **params.fast_detect)
     t = _lap(timings, "detect", t)
     cand = fuse(det, comb, **params.fuse)
+    if fast is not None:
+        more = fuse(det_fast, fast, **params.fast_fuse)
+        more["band"] = 1
+        cand = np.concatenate([cand, more])
     _lap(timings, "fuse", t)
     return cand, det.count, matched
 
@@ -489,8 +568,10 @@ class _Pending:
     """Candidates of one combined frame waiting for the segments that may confirm them."""
 
     def __init__(self, table: np.ndarray, dp_length: int = 0, matched=None, start: int = 0,
-                 tolerance: float = 5.0):
+                 tolerance: float = 5.0, camera=None):
         self.table = table
+        # the camera's offsets (L, 2) of the window's frames
+        self.camera = np.zeros((max(1, dp_length), 2)) if camera is None else camera
         self.tolerance = tolerance  # verified positions this close are one target
         self.dp_length = dp_length
         self.matched = matched      # matched residual frames of the window (or None)

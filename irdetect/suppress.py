@@ -235,7 +235,7 @@ def suppress(frames, previous=None, following=None, camera=None, *, method: str 
 #: ``auto`` with a moving camera: the registered background is taken when its residual's
 #: robust sigma is under WIDER times the image-fixed one's, or its share of bright residue
 #: pixels under BRIGHTER times (``residue``)
-WIDER = 0.8
+WIDER = 0.9
 BRIGHTER = 0.5
 #: ... when the image-fixed one leaves at least this share (fewer is noise: 0-0.2 per
 #: mille on the simulator's scenes of a still camera)

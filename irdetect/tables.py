@@ -23,11 +23,13 @@ DETECTION = np.dtype([
     ("vx", "<f8"), ("vy", "<f8"), ("n_members", "<i4"),
 ])
 
-#: Every fused point before correlation; ``confirmed`` marks those kept.
+#: Every fused point before correlation; ``confirmed`` marks those kept; ``band`` the
+#: combined frame it was found in (0: the paper's, image coordinates; 1: the fast band's
+#: merit that follows the scene, ``irdetect.pipeline``).
 CANDIDATE = np.dtype([
     ("x", "<f8"), ("y", "<f8"), ("frame_start", "<i8"), ("frame_end", "<i8"),
     ("combined_frame", "<i8"), ("intensity", "<f8"), ("score", "<f8"),
-    ("n_members", "<i4"), ("direction", "<i1"), ("confirmed", "?"),
+    ("n_members", "<i4"), ("direction", "<i1"), ("confirmed", "?"), ("band", "<i1"),
 ])
 
 #: 3-point segments over combined frames k, k+1, k+2 with velocity in px/frame.
