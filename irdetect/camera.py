@@ -69,7 +69,7 @@ class _Correlator:
         """Spectrum of a frame (h, w) after a 3x3 median (a hot pixel or any other
         single-pixel spike of the sensor is no structure to register on), mean removed,
         Hanning window."""
-        a = cv2.medianBlur(np.ascontiguousarray(a, np.float32), 3)
+        a = _robust_range(cv2.medianBlur(np.ascontiguousarray(a, np.float32), 3))
         a = (a - np.float32(a.mean(dtype=np.float64))) * self.window
         return scipy.fft.rfft2(a)
 
@@ -101,6 +101,42 @@ class _Correlator:
         return np.array([sx, sy]), (top - mean) / max(std, 1e-20)
 
 
+#: frames are clipped to their median +- RANGE robust sigmas before matching: compact
+#: bright things (the targets themselves, glints) must not be what the camera's motion
+#: is measured on (two bright targets over a featureless sky dragged the estimate along
+#: with them)
+RANGE = 3.0
+
+
+#: a frame whose (reduced) robust spread is under TEXTURE times that of its 3x3 high-pass
+#: has nothing to register on (white noise: 1.6; clouds 10 grey levels peak to peak
+#: under noise of sigma 4: 2.8; real scenes 14-360): the camera is taken to hold still
+#: rather than to follow whatever few bright things there are (the targets)
+TEXTURE = 2.2
+
+
+def textured(frame: np.ndarray) -> bool:
+    """Whether ``frame`` (H, W) has structure beyond pixel noise to register on."""
+    a = np.asarray(frame, np.float32)
+    hp = a - cv2.medianBlur(a, 3)
+
+    def spread(v):
+        v = v[::2, ::2]
+        return 1.4826 * float(np.median(np.abs(v - np.median(v))))
+
+    return spread(a) > TEXTURE * max(spread(hp), 1e-12)
+
+
+def _robust_range(a: np.ndarray) -> np.ndarray:
+    """``a`` clipped to median +- RANGE x 1.4826 MAD (of every 4th pixel)."""
+    sub = a[::4, ::4]
+    med = float(np.median(sub))
+    mad = float(np.median(np.abs(sub - med))) * 1.4826
+    if not mad > 0:
+        return a
+    return np.clip(a, med - RANGE * mad, med + RANGE * mad)
+
+
 def _peak_offset(a: float, b: float, c: float) -> float:
     """Sub-pixel offset of a peak b between neighbours a and c: a Gaussian through the 3
     values (a parabola through their logarithms), a parabola when one is not positive."""
@@ -116,13 +152,12 @@ def _peak_offset(a: float, b: float, c: float) -> float:
 
 
 def _reduce(frame: np.ndarray, levels: int) -> np.ndarray:
-    """``levels`` x ``cv2.pyrDown`` (in the frame's dtype when OpenCV takes it), float32."""
-    out = np.asarray(frame)
-    if out.dtype not in (np.uint8, np.uint16, np.float32):
-        out = out.astype(np.float32)
+    """``levels`` x ``cv2.pyrDown``, in float32 (an 8-bit frame reduced as 8 bits keeps a
+    dozen grey levels of its noise: too few to measure it or to register sub-pixel)."""
+    out = np.asarray(frame, np.float32)
     for _ in range(levels):
         out = cv2.pyrDown(out)
-    return out.astype(np.float32, copy=False)
+    return out
 
 
 class CameraMotion:
@@ -210,6 +245,11 @@ class CameraMotion:
         reduced = _reduce(frame, self.levels)
         if not np.isfinite(reduced).all() or reduced.std() <= 0:
             return self.last.copy()
+        if self.key is not None and not self.key[5]:
+            # a featureless keyframe: only a textured frame can become the next one
+            if not textured(reduced):
+                return self.last.copy()
+            self.key = None
         small = self.coarse.spectrum(reduced)
         if self.key is not None:
             d = self._match(self.key, small, frame, reduced)
@@ -232,15 +272,17 @@ class CameraMotion:
         return self.last.copy()
 
     def _key(self, frame, small, reduced):
-        """A new keyframe: (offset, reduced spectrum, crop box, crop spectrum, the
-        reduced frame's ``_Gradients``)."""
+        """A new keyframe: (offset, reduced spectrum, crop box, crop's ``_Gradients``,
+        the reduced frame's ``_Gradients``, textured)."""
+        if not textured(reduced):
+            return (self.last.copy(), small, None, None, None, False)
         lk = _Gradients(reduced)
         if not self.fine:
-            return (self.last.copy(), small, None, None, lk)
+            return (self.last.copy(), small, None, None, lk, True)
         f = np.asarray(frame, np.float32)
         x0, y0 = _textured_box(f, self.side)
         crop = _Gradients(f[y0:y0 + self.side, x0:x0 + self.side])
-        return (self.last.copy(), small, (x0, y0), crop, lk)
+        return (self.last.copy(), small, (x0, y0), crop, lk, True)
 
     def _match(self, ref, small, frame, reduced):
         """Shift of ``frame`` (``reduced``: it reduced, ``small``: that one's spectrum)
@@ -252,7 +294,7 @@ class CameraMotion:
         d, peak = self.coarse.shift(ref[1], small)
         if peak < MIN_PEAK or not np.isfinite(d).all():
             return None
-        if len(ref) > 4:
+        if len(ref) > 4 and ref[4] is not None:
             d = ref[4].refine(reduced, d)
         d = d * self.scale
         if frame is not None and ref[2] is not None:
@@ -270,7 +312,9 @@ class CameraMotion:
         if not (0 <= x1 <= w - s and 0 <= y1 <= h - s):
             return d
         part = np.asarray(frame[y1:y1 + s, x1:x1 + s], np.float32)
-        return np.array([ix, iy]) + crop.refine(part, np.asarray(d) - (ix, iy))
+        # the reduced frame's estimate is good to about a reduced pixel
+        return np.array([ix, iy]) + crop.refine(part, np.asarray(d) - (ix, iy),
+                                                reach=max(2.0, self.scale))
 
 
 class _Gradients:
@@ -288,10 +332,11 @@ class _Gradients:
 
     @staticmethod
     def _band(a) -> np.ndarray:
-        """The frame smoothed by 1 px minus its level at ``DETREND`` px: the structure
-        that moves with the scene, without the sensor's vignetting or a sky gradient
-        that stay put in the image (they would hold the fit at zero shift)."""
-        a = np.ascontiguousarray(a, np.float32)
+        """The frame median-filtered (3x3: no hot pixels) and smoothed by 1 px minus its
+        level at ``DETREND`` px: the structure that moves with the scene, without the
+        sensor's vignetting or a sky gradient that stay put in the image (they would
+        hold the fit at zero shift)."""
+        a = _robust_range(cv2.medianBlur(np.ascontiguousarray(a, np.float32), 3))
         return (cv2.GaussianBlur(a, (0, 0), 1.0)
                 - cv2.GaussianBlur(a, (0, 0), DETREND, borderType=cv2.BORDER_REFLECT))
 
@@ -300,9 +345,10 @@ class _Gradients:
         self.gx = cv2.Sobel(self.ref, cv2.CV_32F, 1, 0, ksize=3) / 8.0
         self.gy = cv2.Sobel(self.ref, cv2.CV_32F, 0, 1, ksize=3) / 8.0
 
-    def refine(self, frame: np.ndarray, d: np.ndarray) -> np.ndarray:
+    def refine(self, frame: np.ndarray, d: np.ndarray, reach: float = 2.0) -> np.ndarray:
         """The shift d (frame ~ reference moved by d) refined; d itself when the
-        gradients do not pin a shift down (a flat frame) or the fit runs away."""
+        gradients do not pin a shift down (a flat frame) or the fit runs more than
+        ``reach`` px from d."""
         h, w = self.ref.shape
         cur = self._band(frame)
         start = np.asarray(d, float)
@@ -327,7 +373,7 @@ class _Gradients:
             # back(x) = cur(x + d) ~ ref(x) - g r  =>  r = -A^-1 sum(g e)
             r = -np.array([syy * bx - sxy * by, sxx * by - sxy * bx]) / det
             d = d + r
-            if np.abs(d - start).max() > 2.0:
+            if np.abs(d - start).max() > reach:
                 return start
             if np.abs(r).max() < 0.01:
                 break

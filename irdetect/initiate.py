@@ -247,6 +247,56 @@ def initiate_detections(detections, *, method: str = DEFAULTS["method"],
     return out
 
 
+def camera_at(camera, frames) -> np.ndarray:
+    """The camera's offsets (n, 2) at (fractional) ``frames`` (n,): ``camera`` is a
+    ``tables.CAMERA`` table or an array (T, 2) of the offsets of frames 0..T-1; linear
+    between frames, the nearest end outside them."""
+    c = np.asarray(camera)
+    if c.dtype.names is not None:
+        f, cx, cy = c["frame"].astype(float), c["dx"], c["dy"]
+    else:
+        c = c.reshape(-1, 2)
+        f, cx, cy = np.arange(len(c), dtype=float), c[:, 0], c[:, 1]
+    t = np.asarray(frames, float)
+    if len(f) == 0:
+        return np.zeros((len(t), 2))
+    return np.column_stack([np.interp(t, f, cx), np.interp(t, f, cy)])
+
+
+def track_positions(tracks, frames, camera=None) -> np.ndarray:
+    """Image positions (x, y) px of tracks in frames.
+
+    Parameters
+    ----------
+    tracks : structured ndarray
+        ``tables.TRACK`` rows (n).
+    frames : array_like of shape (m,)
+        Frame indices.
+    camera : CAMERA table or ndarray of shape (T, 2), optional
+        The camera's offsets (``/camera`` of the results file); needed for ``scene``
+        tracks, whose positions follow the camera: (x0, y0) + (vx, vy) (f - frame_start)
+        + C_f - C_frame_start.
+
+    Returns
+    -------
+    ndarray of shape (n, m, 2)
+        Positions where the tracks' lines put them (also outside their frame spans).
+    """
+    tr = np.asarray(tracks)
+    f = np.asarray(frames, float)
+    dt = f[None, :] - tr["frame_start"][:, None]
+    pos = np.stack([tr["x0"][:, None] + tr["vx"][:, None] * dt,
+                    tr["y0"][:, None] + tr["vy"][:, None] * dt], axis=-1)
+    scene = tr["scene"] if "scene" in (tr.dtype.names or ()) else np.zeros(len(tr), bool)
+    if scene.any():
+        if camera is None:
+            raise ValueError("scene tracks need the camera's offsets (/camera)")
+        cf = camera_at(camera, f)                                     # (m, 2)
+        cs = camera_at(camera, tr["frame_start"][scene])              # (k, 2)
+        pos[scene] += cf[None, :, :] - cs[:, None, :]
+    return pos
+
+
 def merge_windows(found, x, y, t, scan, *, sigma: float, fit_confidence: float):
     """One track per target from the tracks of overlapping initiation windows.
 

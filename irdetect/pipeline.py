@@ -446,7 +446,7 @@ def detect_sequence(frames, config: ProcessConfig | None = None, *,
             parts[name].append(rows)
     out = {name: (np.concatenate(rows) if rows else tables.empty(name))
            for name, rows in parts.items()}
-    out["tracks"] = initiate_tracks(out["detections"], config)
+    out["tracks"] = initiate_tracks(out["detections"], config, out["camera"])
     return out
 
 
@@ -464,11 +464,74 @@ def check_config(config: ProcessConfig, path=None) -> None:
         detect_sequence(np.zeros((min_frames(config), 32, 32), np.float32), config)
 
 
-def initiate_tracks(detections: np.ndarray, config: ProcessConfig) -> np.ndarray:
-    """Tracks from the confirmed detections (``irdetect.initiate``), TRACK table."""
-    from irdetect.initiate import initiate_detections
+def initiate_tracks(detections: np.ndarray, config: ProcessConfig,
+                    camera=None) -> np.ndarray:
+    """Tracks from the confirmed detections (``irdetect.initiate``), TRACK table.
 
-    return initiate_detections(detections, **asdict(config.initiate))
+    With the camera's offsets (a CAMERA table) of a moving camera, tracks are initiated
+    twice: on the image positions (a target the camera holds, whose scene path is the
+    camera's) and on the scene positions, image minus offset (a target straight in the
+    scene under a panning or shaking camera; ``scene`` rows, their positions follow the
+    camera, ``irdetect.initiate.track_positions``). Of two tracks that claim mostly the
+    same detections the one whose positions lie nearer them is kept.
+    """
+    from irdetect.initiate import camera_at, initiate_detections
+
+    params = asdict(config.initiate)
+    image = initiate_detections(detections, **params)
+    if camera is None or len(camera) < 2 or len(detections) < 2 or not (
+            np.ptp(camera["dx"]) >= MOVING_PX or np.ptp(camera["dy"]) >= MOVING_PX):
+        return image
+    t = 0.5 * (detections["frame_start"] + detections["frame_end"])
+    scene_det = detections.copy()
+    off = camera_at(camera, t)
+    scene_det["x"] -= off[:, 0]
+    scene_det["y"] -= off[:, 1]
+    scene = initiate_detections(scene_det, **params)
+    if len(scene):
+        # into the image coordinates of each track's first frame
+        start = camera_at(camera, scene["frame_start"])
+        scene["x0"] += start[:, 0]
+        scene["y0"] += start[:, 1]
+        scene["rho"] += start[:, 0] * np.cos(scene["theta"]) + start[:, 1] * np.sin(scene["theta"])
+        scene["scene"] = True
+    both = np.concatenate([image, scene])
+    keep = _distinct_tracks(both, detections, camera, float(config.initiate.gate))
+    out = both[keep]
+    out["track_id"] = np.arange(len(out))
+    return out
+
+
+#: the camera's offsets over the sequence spanning this many px make it "moving" for the
+#: track initiation (scene tracks are tried beside the image ones)
+MOVING_PX = 1.0
+
+
+def _distinct_tracks(tracks, detections, camera, gate: float) -> np.ndarray:
+    """Indices of tracks to keep: of two whose supporting detections (those of their
+    span within ``gate`` px of their positions) overlap by half or more, the one with
+    more support, then the smaller mean distance, wins."""
+    from irdetect.initiate import track_positions
+
+    if len(tracks) < 2:
+        return np.arange(len(tracks))
+    t = 0.5 * (detections["frame_start"] + detections["frame_end"])
+    pos = track_positions(tracks, t, camera)                              # (n, d, 2)
+    dist = np.hypot(pos[..., 0] - detections["x"][None], pos[..., 1] - detections["y"][None])
+    inside = (t[None] >= tracks["frame_start"][:, None]) & (t[None] <= tracks["frame_end"][:, None])
+    support = inside & (dist <= gate)
+    count = support.sum(1)
+    mean = np.where(count > 0, (dist * support).sum(1) / np.maximum(count, 1), np.inf)
+    order = np.lexsort((mean, -count))
+    kept: list[int] = []
+    for i in order:                     # a loop over the tracks (a handful)
+        if count[i] == 0 and kept:
+            continue
+        if any((support[i] & support[j]).sum() >= 0.5 * min(count[i], count[j]) > 0
+               for j in kept):
+            continue
+        kept.append(int(i))
+    return np.sort(np.array(kept, dtype=np.int64))
 
 
 def process_file(input, output, config: ProcessConfig | None = None, *, dataset=None,
@@ -534,7 +597,7 @@ def process_file(input, output, config: ProcessConfig | None = None, *, dataset=
             attrs["configured_length"] = config.combine.length
             log.info("%d frames: combined frames of %d frames instead of %d (a short sequence)",
                      n_frames, run.combine.length, config.combine.length)
-        detections = []
+        detections, camera = [], []
         with ResultsWriter(output, force=force, attrs=attrs) as out:
             n_combined = 0
             for chunk in iter_results(src, config, progress=progress, workers=workers,
@@ -546,10 +609,12 @@ def process_file(input, output, config: ProcessConfig | None = None, *, dataset=
                     if name in counts:
                         counts[name] += len(rows)
                 detections.append(chunk["detections"])
+                camera.append(chunk["camera"])
                 _lap(timings, "write", t)
             t = time.perf_counter()
             dets = np.concatenate(detections) if detections else tables.empty(tables.DETECTION)
-            tracks = initiate_tracks(dets, config)
+            tracks = initiate_tracks(dets, config, np.concatenate(camera) if camera
+                                     else tables.empty(tables.CAMERA))
             t = _lap(timings, "initiate", t)
             out.write("tracks", tracks)
             out.attrs["n_combined"] = n_combined

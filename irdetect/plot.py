@@ -169,9 +169,9 @@ def tracks_panel(background: np.ndarray | None, shape, overlay: Overlay, *, scal
     for row in overlay.tracks:
         if not (np.isfinite(row["x0"]) and np.isfinite(row["vx"])):
             continue
-        n = row["frame_end"] - row["frame_start"]
-        (ax, ay) = _to_px(row["x0"], row["y0"], scale)
-        (bx, by) = _to_px(row["x0"] + row["vx"] * n, row["y0"] + row["vy"] * n, scale)
+        px_, py_ = overlay.track_at(row, [row["frame_start"], row["frame_end"]])
+        (ax, ay) = _to_px(px_[0], py_[0], scale)
+        (bx, by) = _to_px(px_[1], py_[1], scale)
         length = max(1.0, math.hypot(bx - ax, by - ay))
         cv2.arrowedLine(img, (int(round(ax)), int(round(ay))), (int(round(bx)), int(round(by))),
                         COLOURS["track"], max(1, int(scale // 2)), cv2.LINE_AA,

@@ -148,6 +148,15 @@ class Overlay:
     tracks: np.ndarray
     track_points: np.ndarray
     truth: np.ndarray
+    camera: np.ndarray | None = None
+
+    def track_at(self, row, frames) -> tuple[np.ndarray, np.ndarray]:
+        """(x, y) of one TRACK row in ``frames`` (a scene track follows the camera)."""
+        from irdetect.initiate import track_positions
+
+        pos = track_positions(np.asarray(row).reshape(1), np.atleast_1d(frames),
+                              self.camera)[0]
+        return pos[:, 0], pos[:, 1]
 
     @classmethod
     def from_tables(cls, found: dict, truth: np.ndarray | None = None) -> "Overlay":
@@ -166,7 +175,8 @@ class Overlay:
                    candidates=cand[np.argsort(cand["frame_start"], kind="stable")],
                    tracks=get("tracks"),
                    track_points=tp[np.argsort(tp["frame"], kind="stable")],
-                   truth=tr[np.argsort(tr["frame"], kind="stable")])
+                   truth=tr[np.argsort(tr["frame"], kind="stable")],
+                   camera=found.get("camera"))
 
     def _window_rows(self, table, t):
         if not len(table):
@@ -286,7 +296,7 @@ def draw_overlay(image: np.ndarray, t: int, overlay: Overlay, style: Style = Sty
     counts["detections"] = len(det)
     tracks = overlay.tracks_at(t)
     for row in tracks:
-        _draw_track(image, row, t, style)
+        _draw_track(image, row, t, style, overlay)
     counts["tracks"] = len(tracks)
     counts["tracker"] = _draw_tracker(image, overlay, t, style)
     if truth and len(overlay.truth):
@@ -301,16 +311,17 @@ def draw_overlay(image: np.ndarray, t: int, overlay: Overlay, style: Style = Sty
     return counts
 
 
-def _draw_track(image, row, t, style):
+def _draw_track(image, row, t, style, overlay):
     s, th = style.scale, style.thickness
     colour = COLOURS["track"]
     fs, fe = int(row["frame_start"]), int(row["frame_end"])
     if np.isfinite(row["x0"]) and np.isfinite(row["y0"]) and np.isfinite(row["vx"]):
         def at(f):
-            return (row["x0"] + row["vx"] * (f - fs), row["y0"] + row["vy"] * (f - fs))
-        (ax, ay), (bx, by) = _to_px(*at(fs), s), _to_px(*at(fe), s)
-        cv2.line(image, (_fix(ax), _fix(ay)), (_fix(bx), _fix(by)), colour, 1, cv2.LINE_AA,
-                 _SHIFT)
+            return overlay.track_at(row, f)
+        # the whole track where it is in the image at every frame of its span
+        wx, wy = _to_px(*at(np.arange(fs, fe + 1)), s)
+        whole = np.rint(np.column_stack([wx, wy]) * (1 << _SHIFT)).astype(np.int32)
+        cv2.polylines(image, [whole], False, colour, 1, cv2.LINE_AA, _SHIFT)
         frames = np.arange(max(fs, t - style.trail), t + 1)
         tx, ty = _to_px(*at(frames), s)
         pts = np.rint(np.column_stack([tx, ty]) * (1 << _SHIFT)).astype(np.int32)

@@ -39,11 +39,14 @@ SEGMENT = np.dtype([
     ("vx", "<f8"), ("vy", "<f8"), ("score", "<f8"),
 ])
 
-#: Initiated tracks of an image sequence (velocities in px/frame).
+#: Initiated tracks of an image sequence (velocities in px/frame). rho, theta, x0, y0 are
+#: in the image coordinates of ``frame_start``; a ``scene`` track is straight in the scene:
+#: its position in frame f is (x0, y0) + (vx, vy) (f - frame_start) plus the camera's
+#: motion since frame_start (``irdetect.initiate.track_positions``).
 TRACK = np.dtype([
     ("track_id", "<i8"), ("rho", "<f8"), ("theta", "<f8"), ("vx", "<f8"), ("vy", "<f8"),
     ("frame_start", "<i8"), ("frame_end", "<i8"), ("n_points", "<i8"), ("score", "<f8"),
-    ("x0", "<f8"), ("y0", "<f8"),
+    ("x0", "<f8"), ("y0", "<f8"), ("scene", "?"),
 ])
 
 #: The camera's image motion, one row per frame: a scene point at (x, y) in frame 0 is at

@@ -65,7 +65,7 @@ class Recorder:
             ring = corr_mod.ring_significance(evidence, c, v)
             local = corr_mod.local_significance(evidence, c, v, z)
             tm = float(np.mean(evidence.index))
-            chains = [(loose.index[i], z[i], ring[i] / max(z[i], 1e-9), local[i], c[i], v[i],
+            chains = [(loose.index[i], z[i], ring[i], local[i], c[i], v[i],
                        tm) for i in range(len(z))]
         accepted = {tuple(r) for r in out.index}
         self.triples.append((chains, accepted))

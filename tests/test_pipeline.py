@@ -233,3 +233,28 @@ def test_targets_are_found_through_a_panning_shaking_camera(seed):
     truth = camera_offsets(s, rng)
     cam = np.column_stack([out["camera"]["dx"], out["camera"]["dy"]])
     assert np.sqrt(((cam - truth) ** 2).mean()) < 1.0 and np.abs(cam - truth).max() < 2.0
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_tracks_through_a_panning_camera_follow_their_targets(seed):
+    from irdetect.initiate import track_positions
+    from irdetect.metrics.initiation import score_track_paths
+
+    frames, truth = simulate("wan2008", rng=seed, n_frames=60, height=240, width=320,
+                             n_targets=2, directions=[], margin=4.0, **PANNING)
+    out = detect_sequence(frames)
+    tracks = out["tracks"]
+    assert tracks["scene"].any()                  # straight in the scene, not the image
+    s = score_track_paths(tracks, truth, gate=6.0, camera=out["camera"])
+    assert s["pt_overall"] == 1.0 and s["n_false"] == 0
+    # a scene track's positions follow the camera: without it they drift off by its pan
+    row = tracks[tracks["scene"]][:1]
+    f = np.array([row["frame_start"][0], row["frame_end"][0]])
+    moved = track_positions(row, f, out["camera"])[0]
+    flat = row.copy()
+    flat["scene"] = False
+    drift = track_positions(flat, f)[0]
+    span = f[1] - f[0]
+    assert np.hypot(*(moved[1] - drift[1])) > 0.5 * span * np.hypot(1.6, 1.2)
+    with pytest.raises(ValueError, match="camera"):
+        track_positions(row, f)

@@ -11,7 +11,7 @@ Each section scores one table when the results file holds it:
   track initiation /tracks   Pt per target and overall, Pc, velocity error (lines within
                            3 sigma of every true position, one-to-one; docs/initiation.md);
                            pt_path, n_false_path: the track's position in each of its
-                           frames within 2 x --gate of the target in half of them
+                           frames within 2 x --gate of the target in 80 % of them
                            /scan_tracks of irdetect initiate: the same per window, OSPA, GOSPA
 
 Other sections (initiated tracks, frame-by-frame tracks) register in ``SECTIONS``.
