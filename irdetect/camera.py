@@ -35,12 +35,13 @@ CROP_PX = 128
 STILL_STEP = 0.25
 #: refinement steps on the full-resolution crop (``CameraMotion._refine``)
 REFINE_STEPS = 1
-#: matches whose peak stands less than this many robust sigmas above the correlation
-#: surface are not trusted (featureless frames, a blurred jump): the frame keeps the
-#: previous frame's offset and the keyframe stays
-MIN_PEAK = 7.0
-#: the smooth level (Gaussian of this sigma in px) removed from a frame before its
-#: Hanning window
+#: matches whose peak stands less than this many standard deviations above the
+#: correlation surface are not trusted (featureless frames, a blurred jump, a straight
+#: horizon over noise whose ridge has no place along it: 5.5-7.8; textured scenes 12-25):
+#: the frame keeps the previous frame's offset and the keyframe stays
+MIN_PEAK = 10.0
+#: the smooth level (Gaussian of this sigma in px) removed from a frame before the
+#: Lucas-Kanade refinement (``_Gradients``)
 DETREND = 8.0
 #: the cross-power spectrum's weight: a Gaussian low-pass of this sigma in cycles per px
 LOWPASS = 0.1
@@ -108,11 +109,15 @@ class _Correlator:
 RANGE = 3.0
 
 
+#: the Lucas-Kanade fit needs the smaller eigenvalue of the gradients' structure tensor
+#: to be at least APERTURE x the larger one: a straight edge
+#: alone (a horizon over noise) does not say how far the scene moved along it
+APERTURE = 0.02
 #: a frame whose (reduced) robust spread is under TEXTURE times that of its 3x3 high-pass
 #: has nothing to register on (white noise: 1.6; clouds 10 grey levels peak to peak
-#: under noise of sigma 4: 2.8; real scenes 14-360): the camera is taken to hold still
+#: under noise of sigma 4: 2.8; real scenes 14-360; 1.9 leaves faint clouds in): the camera is taken to hold still
 #: rather than to follow whatever few bright things there are (the targets)
-TEXTURE = 2.2
+TEXTURE = 1.9
 
 
 def textured(frame: np.ndarray) -> bool:
@@ -296,6 +301,8 @@ class CameraMotion:
             return None
         if len(ref) > 4 and ref[4] is not None:
             d = ref[4].refine(reduced, d)
+            if d is None:
+                return None
         d = d * self.scale
         if frame is not None and ref[2] is not None:
             d = self._refine(ref, frame, d)
@@ -312,9 +319,10 @@ class CameraMotion:
         if not (0 <= x1 <= w - s and 0 <= y1 <= h - s):
             return d
         part = np.asarray(frame[y1:y1 + s, x1:x1 + s], np.float32)
-        # the reduced frame's estimate is good to about a reduced pixel
-        return np.array([ix, iy]) + crop.refine(part, np.asarray(d) - (ix, iy),
-                                                reach=max(2.0, self.scale))
+        # the reduced frame's estimate is good to about a reduced pixel; a crop that
+        # cannot say more keeps it
+        r = crop.refine(part, np.asarray(d) - (ix, iy), reach=max(2.0, self.scale))
+        return d if r is None else np.array([ix, iy]) + r
 
 
 class _Gradients:
@@ -345,10 +353,11 @@ class _Gradients:
         self.gx = cv2.Sobel(self.ref, cv2.CV_32F, 1, 0, ksize=3) / 8.0
         self.gy = cv2.Sobel(self.ref, cv2.CV_32F, 0, 1, ksize=3) / 8.0
 
-    def refine(self, frame: np.ndarray, d: np.ndarray, reach: float = 2.0) -> np.ndarray:
-        """The shift d (frame ~ reference moved by d) refined; d itself when the
-        gradients do not pin a shift down (a flat frame) or the fit runs more than
-        ``reach`` px from d."""
+    def refine(self, frame: np.ndarray, d: np.ndarray, reach: float = 2.0):
+        """The shift d (frame ~ reference moved by d) refined; None when the gradients
+        do not pin a shift down on both axes (a flat frame, or one straight edge such
+        as a horizon: phase correlation's peak then lies anywhere along a ridge) or the
+        fit runs more than ``reach`` px from d."""
         h, w = self.ref.shape
         cur = self._band(frame)
         start = np.asarray(d, float)
@@ -359,22 +368,24 @@ class _Gradients:
                                   borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
             m = int(np.ceil(np.abs(d).max())) + 2
             if 2 * m >= min(h, w):
-                return start
+                return None
             e = (back - self.ref)[m:-m, m:-m]
             gx, gy = self.gx[m:-m, m:-m], self.gy[m:-m, m:-m]
             ok = np.isfinite(e)
             e, gx, gy = e[ok], gx[ok], gy[ok]
             sxx, sxy, syy = float(np.dot(gx, gx)), float(np.dot(gx, gy)), float(np.dot(gy, gy))
             det = sxx * syy - sxy * sxy
-            # the gradients must pin both axes down (not one edge, not a flat frame)
-            if not det > 1e-6 * (sxx + syy) ** 2:
-                return start
+            # the gradients must pin both axes down (not one edge, not a flat frame):
+            # the structure tensor's smaller eigenvalue beyond what noise gives
+            half, gap = 0.5 * (sxx + syy), np.sqrt(0.25 * (sxx - syy) ** 2 + sxy * sxy)
+            if not half - gap > APERTURE * (half + gap):
+                return None
             bx, by = float(np.dot(gx, e)), float(np.dot(gy, e))
             # back(x) = cur(x + d) ~ ref(x) - g r  =>  r = -A^-1 sum(g e)
             r = -np.array([syy * bx - sxy * by, sxx * by - sxy * bx]) / det
             d = d + r
             if np.abs(d - start).max() > reach:
-                return start
+                return None
             if np.abs(r).max() < 0.01:
                 break
         return d
