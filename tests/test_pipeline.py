@@ -258,3 +258,11 @@ def test_tracks_through_a_panning_camera_follow_their_targets(seed):
     assert np.hypot(*(moved[1] - drift[1])) > 0.5 * span * np.hypot(1.6, 1.2)
     with pytest.raises(ValueError, match="camera"):
         track_positions(row, f)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+@pytest.mark.parametrize("speed", [0.5, 3.0])
+def test_a_7x7_px_target_is_found(seed, speed):
+    # PSF sigma 1.5 px: 7 x 7 px above a tenth of the peak (the SIRST "small" target)
+    m, _ = _scene_score(seed, snr=5.0, psf_sigma=1.5, speed=[speed, speed])
+    assert m["targets"] == 6 and m["detected"] >= 5 and m["false"] <= 1
