@@ -9,12 +9,12 @@ docs/results/throughput.md and docs/results/profiles.md):
     The full front end: per-frame suppression, the ``dp`` merit, a low first threshold
     and the matched-filter verification of every chain (SNR 2 targets, clutter).
 ``fast``
-    The same suppression (``auto``) and ``dp`` merit without the verification: a higher
-    first threshold (k 3.5, one robust sigma per frame measured on a 4-px grid) and the
-    earlier score test. 2-3x the default's frames per CPU-second (measured 1.8x at
-    320x240 to 3.4x at 640x512, docs/results/throughput.md; more with ``[suppress] method = "temporal"`` for a camera known to hold
-    still); for targets of SNR 3 and up (at SNR 2 it finds about half the targets the
-    default finds).
+    The same suppression (``auto``) and ``dp`` merit without the verification and the
+    fast band: a higher first threshold (k 3.5, one robust sigma per frame measured on a
+    4-px grid) and the earlier score test. 3-4x the default's frames per CPU-second
+    (measured 3.4x at 256x256 to 3.9x at 640x512, docs/results/throughput.md); for
+    targets of SNR 3 and up moving up to about 2 px/frame (at SNR 2 it finds about half
+    the targets the default finds).
 ``paper``
     The paper's variant (Wan & Askar 2008), for comparison: max projection, the paper's
     grouping, no verification; the chains keep the one-to-one resolution and the score

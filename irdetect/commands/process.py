@@ -48,8 +48,9 @@ def add_arguments(p):
                    "with --profile, applied on top of the profile")
     p.add_argument("--profile", default="default", metavar="NAME",
                    help=f"named configuration: {', '.join(profile_names())} (default: "
-                   "default; `fast`: no matched-filter verification, 2-3x the frames "
-                   "per CPU-second, for targets of SNR >= 3; docs/cli.md)")
+                   "default; `fast`: no matched-filter verification and no fast band, "
+                   "3-4x the frames per CPU-second, for targets of SNR >= 3 up to about 2 "
+                   "px/frame; docs/cli.md)")
     p.add_argument("--threads", type=int, metavar="N",
                    help=f"single input: threads over windows (default {DEFAULT_THREADS}: the "
                    "correlation of each window triple runs beside the next windows' front "
