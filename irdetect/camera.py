@@ -5,16 +5,20 @@ y = row, px): ``C`` of shape (T, 2) is the camera's image motion, translation on
 what the registered background, the scene-coordinate detection of fast targets and the
 track initiation share, and what ``/camera`` in a results file holds.
 
-Each frame is matched against a keyframe by phase correlation, coarse on the frames
-reduced to about ``WORK_PX`` px, then refined at full resolution on a crop of
-``CROP_PX`` px around the keyframe's most textured block. The keyframe moves on when
-the shift against it grows past a quarter of the reduced frame or the match is weak, so
-errors add up only at keyframe changes, not frame by frame (chained frame-to-frame
+Each frame is matched against a keyframe: phase correlation on the frames reduced to
+64-127 px finds the shift, a Lucas-Kanade fit of the reduced frames refines it, and for
+frames reduced twice or more a second fit on a full-resolution crop of at most
+``CROP_PX`` px (the keyframe's most textured square) refines it again. The keyframe
+moves on when the shift against it passes (min(H, W) - crop) / 8 px or the match is weak,
+so errors add up only at keyframe changes, not frame by frame (chained frame-to-frame
 estimates drift: phase correlation's sub-pixel estimate is biased towards whole pixels,
-docs/real.md). The cross-power spectrum is weighted by a Gaussian low-pass before its
-inverse: the sensor's fixed pattern (hot pixels, a column mesh), which stays put in the
-image and has a flat spectrum, then cannot pin the peak at zero shift, and the broader
-peak gives a less biased sub-pixel position (a Gaussian fit to its 3 x 3 top).
+docs/real.md). Frames are median-filtered (3x3) and clipped to +-3 robust sigmas first,
+and the cross-power spectrum is weighted by a Gaussian low-pass: the sensor's fixed
+pattern (hot pixels, a column mesh: flat spectra that stay put in the image), vignetting
+(band-passed away for the fit) and the targets themselves do not pin or drag the
+estimate. Featureless frames and a lone straight edge give no estimate: the camera is
+then taken to hold still. ``scipy.fft`` (one thread) keeps the offsets the same from run
+to run.
 """
 
 from __future__ import annotations
@@ -28,13 +32,11 @@ import scipy.fft
 #: frames are reduced (``cv2.pyrDown``, at least once when they are 2 x WORK_PX px or
 #: more) until their shorter side is under 2 x WORK_PX
 WORK_PX = 64
-#: side of the full-resolution crop the coarse shift is refined on (at most half the
-#: frame's shorter side)
+#: side of the full-resolution crop the shift is refined on (at most half the frame's
+#: shorter side)
 CROP_PX = 128
 #: a block whose offsets stay within this many px is a still camera (``update``)
 STILL_STEP = 0.25
-#: refinement steps on the full-resolution crop (``CameraMotion._refine``)
-REFINE_STEPS = 1
 #: matches whose peak stands less than this many standard deviations above the
 #: correlation surface are not trusted (featureless frames, a blurred jump, a straight
 #: horizon over noise whose ridge has no place along it: 5.5-7.8; textured scenes 12-25):
@@ -291,11 +293,9 @@ class CameraMotion:
 
     def _match(self, ref, small, frame, reduced):
         """Shift of ``frame`` (``reduced``: it reduced, ``small``: that one's spectrum)
-        against the reference ``ref`` (coarse only when ``frame`` is None or ``ref`` has
-        no crop), or None when the match is weak. The coarse shift is measured twice:
-        the second time on the reduced frame moved back by the first estimate, which
-        removes most of the sub-pixel estimate's bias (smooth scenes, whose crop has too
-        little texture to refine on, keep this one)."""
+        against the reference ``ref``, or None when the match is weak: phase correlation,
+        then the reference's Lucas-Kanade fit on the reduced frames (a keyframe's), then
+        the full-resolution crop's (when ``frame`` is given and the keyframe has one)."""
         d, peak = self.coarse.shift(ref[1], small)
         if peak < MIN_PEAK or not np.isfinite(d).all():
             return None
