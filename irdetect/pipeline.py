@@ -258,7 +258,8 @@ def _correlate(triple, cc, params: "_StageParams", timings: dict | None):
 
 #: the fast band's merit keeps a target near its position in the window's last frame
 #: (its wide dilations do not let the path's past outweigh the present): the search of
-#: the verification starts 0-2 frames of motion ahead of the fused points
+#: the verification starts 0 and 1 frame of motion ahead of the fused points (0, 0.5, 1,
+#: 2 found the same targets on the simulator at twice the cost)
 FAST_LEADS = (0.0, 1.0)
 
 
