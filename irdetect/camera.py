@@ -24,6 +24,7 @@ to run.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -112,36 +113,37 @@ RANGE = 3.0
 
 
 #: the Lucas-Kanade fit needs the smaller eigenvalue of the gradients' structure tensor
-#: to be at least APERTURE x the larger one: a straight edge
-#: alone (a horizon over noise) does not say how far the scene moved along it
+#: to be at least APERTURE x the larger one: a straight edge alone (a horizon over noise)
+#: does not say how far the scene moved along it
 APERTURE = 0.02
 #: a frame whose (reduced) robust spread is under TEXTURE times that of its 3x3 high-pass
-#: has nothing to register on (white noise: 1.6; clouds 10 grey levels peak to peak
-#: under noise of sigma 4: 2.8; real scenes 14-360; 1.9 leaves faint clouds in): the camera is taken to hold still
-#: rather than to follow whatever few bright things there are (the targets)
+#: has nothing to register on (white noise: 1.6; clouds 10 grey levels peak to peak under
+#: noise of sigma 4: 2.8; real scenes 14-360; 1.9 leaves faint clouds in): the camera is
+#: taken to hold still rather than to follow whatever few bright things there are (the
+#: targets)
 TEXTURE = 1.9
+
+
+def _median_spread(v: np.ndarray) -> tuple[float, float]:
+    """Median and 1.4826 MAD of the samples ``v`` (0 when more than half are equal)."""
+    med = float(np.median(v))
+    return med, 1.4826 * float(np.median(np.abs(v - med)))
 
 
 def textured(frame: np.ndarray) -> bool:
     """Whether ``frame`` (H, W) has structure beyond pixel noise to register on."""
     a = np.asarray(frame, np.float32)
     hp = a - cv2.medianBlur(a, 3)
-
-    def spread(v):
-        v = v[::2, ::2]
-        return 1.4826 * float(np.median(np.abs(v - np.median(v))))
-
-    return spread(a) > TEXTURE * max(spread(hp), 1e-12)
+    return (_median_spread(a[::2, ::2])[1]
+            > TEXTURE * max(_median_spread(hp[::2, ::2])[1], 1e-12))
 
 
 def _robust_range(a: np.ndarray) -> np.ndarray:
     """``a`` clipped to median +- RANGE x 1.4826 MAD (of every 4th pixel)."""
-    sub = a[::4, ::4]
-    med = float(np.median(sub))
-    mad = float(np.median(np.abs(sub - med))) * 1.4826
-    if not mad > 0:
+    med, spread = _median_spread(a[::4, ::4])
+    if not spread > 0:
         return a
-    return np.clip(a, med - RANGE * mad, med + RANGE * mad)
+    return np.clip(a, med - RANGE * spread, med + RANGE * spread)
 
 
 def _peak_offset(a: float, b: float, c: float) -> float:
@@ -165,6 +167,23 @@ def _reduce(frame: np.ndarray, levels: int) -> np.ndarray:
     for _ in range(levels):
         out = cv2.pyrDown(out)
     return out
+
+
+class _Reference(NamedTuple):
+    """What a frame is matched against: a keyframe, or the previous frame (spectrum only).
+
+    ``offset`` (2,) its camera offset; ``spectrum`` of its reduced frame; ``box`` (x, y)
+    of its full-resolution crop and ``crop`` that crop's ``_Gradients`` (None when the
+    frame is not reduced twice or more); ``reduced`` its reduced frame's ``_Gradients``;
+    ``textured`` whether it has anything to register on (``textured``).
+    """
+
+    offset: np.ndarray
+    spectrum: np.ndarray
+    box: tuple | None = None
+    crop: "_Gradients | None" = None
+    reduced: "_Gradients | None" = None
+    textured: bool = True
 
 
 class CameraMotion:
@@ -204,9 +223,8 @@ class CameraMotion:
         # px: the keyframe moves on beyond (the refinement's crop stays inside: the crop
         # is chosen at least (H - side) / 4 px from the borders)
         self.limit = max(2.0, (min(h, w) - side) / 8.0)
-        self.n = 0                             # frames seen
-        self.key = None                        # the keyframe (``_key``)
-        self.previous = None                   # (offset, reduced spectrum) of the last frame
+        self.key = None                        # the keyframe (``_Reference``)
+        self.previous = None                   # the last frame (``_Reference``, spectrum only)
         self.last = np.zeros(2)
         self.still = False                     # the last block's offsets did not move
         self.matched = False                   # ... and some of its frames matched
@@ -243,16 +261,15 @@ class CameraMotion:
         if not np.isfinite(reduced).all() or reduced.std() <= 0:
             return None
         d = self._match(self.key, self.coarse.spectrum(reduced), frame, reduced)
-        return None if d is None else self.key[0] + d
+        return None if d is None else self.key.offset + d
 
     def _one(self, frame) -> np.ndarray:
-        self.n += 1
         if self.coarse is None:
             return self.last.copy()
         reduced = _reduce(frame, self.levels)
         if not np.isfinite(reduced).all() or reduced.std() <= 0:
             return self.last.copy()
-        if self.key is not None and not self.key[5]:
+        if self.key is not None and not self.key.textured:
             # a featureless keyframe: only a textured frame can become the next one
             if not textured(reduced):
                 return self.last.copy()
@@ -262,7 +279,7 @@ class CameraMotion:
             d = self._match(self.key, small, frame, reduced)
             if d is not None:
                 self.matched = True
-                self.last = self.key[0] + d
+                self.last = self.key.offset + d
                 if np.abs(d).max() > self.limit:
                     self.key = None
             elif self.previous is not None:
@@ -271,47 +288,47 @@ class CameraMotion:
                 # next keyframe; when that fails too (a featureless frame) nothing moves
                 d = self._match(self.previous, small, None, reduced)
                 if d is not None:
-                    self.last = self.previous[0] + d
+                    self.last = self.previous.offset + d
                     self.key = None
         if self.key is None:
             self.key = self._key(frame, small, reduced)
-        self.previous = (self.last.copy(), small)
+        self.previous = _Reference(self.last.copy(), small)
         return self.last.copy()
 
-    def _key(self, frame, small, reduced):
-        """A new keyframe: (offset, reduced spectrum, crop box, crop's ``_Gradients``,
-        the reduced frame's ``_Gradients``, textured)."""
+    def _key(self, frame, small, reduced) -> _Reference:
+        """A new keyframe at this frame (``reduced``: it reduced, ``small``: that one's
+        spectrum)."""
         if not textured(reduced):
-            return (self.last.copy(), small, None, None, None, False)
+            return _Reference(self.last.copy(), small, textured=False)
         lk = _Gradients(reduced)
         if not self.fine:
-            return (self.last.copy(), small, None, None, lk, True)
+            return _Reference(self.last.copy(), small, reduced=lk)
         f = np.asarray(frame, np.float32)
         x0, y0 = _textured_box(f, self.side)
         crop = _Gradients(f[y0:y0 + self.side, x0:x0 + self.side])
-        return (self.last.copy(), small, (x0, y0), crop, lk, True)
+        return _Reference(self.last.copy(), small, (x0, y0), crop, lk)
 
     def _match(self, ref, small, frame, reduced):
         """Shift of ``frame`` (``reduced``: it reduced, ``small``: that one's spectrum)
         against the reference ``ref``, or None when the match is weak: phase correlation,
         then the reference's Lucas-Kanade fit on the reduced frames (a keyframe's), then
         the full-resolution crop's (when ``frame`` is given and the keyframe has one)."""
-        d, peak = self.coarse.shift(ref[1], small)
+        d, peak = self.coarse.shift(ref.spectrum, small)
         if peak < MIN_PEAK or not np.isfinite(d).all():
             return None
-        if len(ref) > 4 and ref[4] is not None:
-            d = ref[4].refine(reduced, d)
+        if ref.reduced is not None:
+            d = ref.reduced.refine(reduced, d)
             if d is None:
                 return None
         d = d * self.scale
-        if frame is not None and ref[2] is not None:
+        if frame is not None and ref.box is not None:
             d = self._refine(ref, frame, d)
         return d
 
     def _refine(self, ref, frame, d) -> np.ndarray:
         """The coarse shift d refined at full resolution on the keyframe's crop: the
         frame's crop at the whole-pixel shift, then the rest by ``_Gradients``."""
-        (x0, y0), crop = ref[2], ref[3]
+        (x0, y0), crop = ref.box, ref.crop
         h, w = self.shape
         s = self.side
         ix, iy = int(round(d[0])), int(round(d[1]))
@@ -331,9 +348,10 @@ class _Gradients:
     Phase correlation finds the peak; on smooth scenes under noise (clouds: texture and
     noise of the same size per pixel) its position is 1-2 px off, while the
     least-squares fit of the residual to the reference's gradients,
-    [sum gx^2, sum gx gy; sum gx gy, sum gy^2] r = sum (g e), is the efficient estimate
-    of a small shift. The reference's gradients (of the frame smoothed by 1 px) and the
-    system's matrix are computed once per keyframe.
+    [sum gx^2, sum gx gy; sum gx gy, sum gy^2] r = -sum (g e), is the efficient
+    estimate of a small shift. The reference's band-passed frame and its gradients are
+    computed once per keyframe; each step sums them over the pixels the moved-back frame
+    covers.
     """
 
     STEPS = 2
@@ -376,7 +394,7 @@ class _Gradients:
             sxx, sxy, syy = float(np.dot(gx, gx)), float(np.dot(gx, gy)), float(np.dot(gy, gy))
             det = sxx * syy - sxy * sxy
             # the gradients must pin both axes down (not one edge, not a flat frame):
-            # the structure tensor's smaller eigenvalue beyond what noise gives
+            # the structure tensor's smaller eigenvalue against its larger
             half, gap = 0.5 * (sxx + syy), np.sqrt(0.25 * (sxx - syy) ** 2 + sxy * sxy)
             if not half - gap > APERTURE * (half + gap):
                 return None

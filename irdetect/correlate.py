@@ -311,11 +311,9 @@ def ring_significance(evidence: Evidence, c: np.ndarray, v: np.ndarray) -> np.nd
     width where it is wider (measured from the mean of the sums 1.5 px out in 8
     directions: a Gaussian of sigma s keeps exp(-1.125 / s^2) of its sum there), up to
     RING_MAX px: a broad target (PSF sigma 2 px keeps 40 % of its peak 3 px out) is not
-    an edge. Measured: PSF sigma 2.2 targets at 3 px/frame, SNR 5: 0 -> 24/24 windows;
-    easy3 0 -> 3/4; but image-fixed blobs under a slow pan pass more often
-    (istd640-seq3-135 49 -> 114 false detections, seq1-101 7 -> 15; the smallest of
-    the 8 sums instead of their mean kept 76 and 13 and lost easy3 again). Sums without ``CLIP``:
-    the cap would make a bright target as strong beside its track as on it.
+    an edge. The trade-off against RING_MAX = RING_PX on real data is section 4 of
+    docs/results/real.md (``scripts/bench_real.py``). Sums without ``CLIP``: the cap would
+    make a bright target as strong beside its track as on it.
     """
     if len(c) == 0:
         return np.zeros(0)
@@ -332,8 +330,8 @@ def ring_significance(evidence: Evidence, c: np.ndarray, v: np.ndarray) -> np.nd
 
 def _parallel_sums(evidence: Evidence, c, v, offsets, cap: bool = True):
     """Track sums (n, R) float32 of the tracks c + offsets[r], velocity v (offsets (R, 2)
-    px, or (n, R, 2) per track), bilinear (each sample capped at ``CLIP`` sigmas unless ``cap`` is False), and
-    the number of frames F they sum over."""
+    px, or (n, R, 2) per track), bilinear (each sample capped at ``CLIP`` sigmas unless
+    ``cap`` is False), and the number of frames F they sum over."""
     frames, dts, kw = _frame_blocks(evidence)
     if not cap:
         kw = {**kw, "cap": None}
@@ -427,7 +425,7 @@ def _sample_sum(blocks, dts, cc, vv, bilinear, shift=None, cap=None):
     shift : ndarray of shape (F, 2), optional
         Each frame's offset (x, y) added to the track's position (``Evidence.shift``).
     cap : float, optional
-        Each frame's sample counts at most ``cap`` (``Evidence.cap``).
+        Each frame's sample counts at most ``cap`` (``CLIP`` x the evidence's sigma).
 
     Returns
     -------

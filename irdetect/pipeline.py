@@ -243,9 +243,9 @@ def _correlate(triple, cc, params: "_StageParams", timings: dict | None):
     evidence = _evidence(triple, cc)
     parts = [_band(triple, 0, cc.step, evidence, params.correlate)]
     if params.fast:
+        frames, cam = _triple_camera(triple)
         scene = None if evidence is None else dataclasses.replace(
-            evidence, shift=np.concatenate([p.camera for p in triple])[
-                np.searchsorted(_frames_of(triple), evidence.index)], leads=FAST_LEADS)
+            evidence, shift=cam[np.searchsorted(frames, evidence.index)], leads=FAST_LEADS)
         parts.append(_band(triple, 1, cc.step, scene, params.fast_correlate, cc.length))
     corr = parts[0] if len(parts) == 1 else Correlation(
         segments=np.concatenate([c.segments for c in parts]),
@@ -263,9 +263,10 @@ def _correlate(triple, cc, params: "_StageParams", timings: dict | None):
 FAST_LEADS = (0.0, 1.0)
 
 
-def _frames_of(triple) -> np.ndarray:
-    """The frame index of every row of the windows' camera offsets, in order."""
-    return np.concatenate([np.arange(p.start, p.start + len(p.camera)) for p in triple])
+def _triple_camera(triple) -> tuple[np.ndarray, np.ndarray]:
+    """(frames (F,), offsets (F, 2)): the camera's offsets of the 3 windows' frames."""
+    frames = np.concatenate([np.arange(p.start, p.start + len(p.camera)) for p in triple])
+    return frames, np.concatenate([p.camera for p in triple])
 
 
 def _band(triple, band: int, step: int, evidence, kwargs, length: int = 0) -> Correlation:
@@ -283,8 +284,7 @@ def _band(triple, band: int, step: int, evidence, kwargs, length: int = 0) -> Co
         if len(corr.index) else corr.index
     positions, segments = corr.positions, corr.segments
     if band == 1 and len(segments):
-        frames = _frames_of(triple)
-        cam = np.concatenate([p.camera for p in triple])
+        frames, cam = _triple_camera(triple)
         positions = positions.copy()
         for i, (p, (fx, fy)) in enumerate(zip(triple, (("x1", "y1"), ("x2", "y2"),
                                                        ("x3", "y3")))):
@@ -494,7 +494,8 @@ def initiate_tracks(detections: np.ndarray, config: ProcessConfig,
         start = camera_at(camera, scene["frame_start"])
         scene["x0"] += start[:, 0]
         scene["y0"] += start[:, 1]
-        scene["rho"] += start[:, 0] * np.cos(scene["theta"]) + start[:, 1] * np.sin(scene["theta"])
+        scene["rho"] += (start[:, 0] * np.cos(scene["theta"])
+                         + start[:, 1] * np.sin(scene["theta"]))
         scene["scene"] = True
     both = np.concatenate([image, scene])
     keep = _distinct_tracks(both, detections, camera, float(config.initiate.gate))

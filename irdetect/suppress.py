@@ -55,11 +55,9 @@ METHODS = ("tophat", "maxmean", "maxmedian", "temporal", "registered", "auto", "
 LEAD_INS = ("future", "tophat")
 
 
-
 def suppress(frames, previous=None, following=None, camera=None, *, method: str = "auto",
-             size: int = 9,
-             guard: int = 1, history: int = 12, gap: int = 8, tolerance: int = 1,
-             fixed_pattern: bool = True, samples: int = 3,
+             size: int = 9, guard: int = 1, history: int = 12, gap: int = 8,
+             tolerance: int = 1, fixed_pattern: bool = True, samples: int = 3,
              lead_in: str = "future") -> np.ndarray:
     """Suppress the background of one frame or a stack of frames.
 
@@ -196,6 +194,7 @@ def suppress(frames, previous=None, following=None, camera=None, *, method: str 
         elif method != "temporal":
             parts = [a for a in (past, stack, future) if a is not None]
             cam = estimate_motion(parts[0] if len(parts) == 1 else np.concatenate(parts))
+
         def temporal():
             # integer frames enter the float32 running sum as they are stored (the same
             # values as converted copies, without converting the past once more)
