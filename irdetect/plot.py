@@ -20,7 +20,6 @@ from __future__ import annotations
 import logging
 import math
 import os
-import tempfile
 from pathlib import Path
 
 import cv2
@@ -301,30 +300,25 @@ def plot_results(results, source=None, *, suppressed: bool = True, truth=None,
     return np.hstack([left, gap, right])
 
 
-def write_image(path, image: np.ndarray, *, force: bool = False) -> Path:
-    """Write an image atomically (temporary file beside it, then rename).
+def write_image(path, image: np.ndarray, *, force: bool = False, inputs=()) -> Path:
+    """Write an image atomically (``irdetect.io.atomic_output``: a temporary beside it,
+    then a rename).
 
     Raises
     ------
     InputError
         Bad path (see ``irdetect.io.check_output_path``) or a type OpenCV cannot write.
     """
-    from irdetect.io import check_output_path
+    from irdetect.io import atomic_output, check_output_path
 
-    path = check_output_path(path, force)
+    path = check_output_path(path, force, inputs)
     suffix = path.suffix.lower()
     if suffix not in (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"):
         raise InputError(f"unknown image type {path.suffix!r} (use .png, .jpg, .bmp or .tif)",
                          path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{suffix}", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_output(path, force=force, inputs=inputs, suffix=suffix) as tmp:
         if not cv2.imwrite(tmp, image):
-            raise InputError("OpenCV could not write the image", path)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+            raise InputError("OpenCV could not write the image (disk full?)", path)
     return path
 
 

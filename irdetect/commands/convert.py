@@ -27,7 +27,10 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    check_output_path(args.output, args.force)
+    if args.frame_rate is not None and not args.frame_rate > 0:
+        raise InputError(f"--frame-rate must be > 0, got {args.frame_rate}")
+    inputs = (args.input, args.truth)
+    check_output_path(args.output, args.force, inputs)
     with open_sequence(args.input, args.dataset) as src:
         truth = (read_point_annotations(args.truth, len(src)) if args.truth else src.truth)
         bar = tqdm(total=len(src), unit="frame", disable=not args.progress, desc="convert")
@@ -41,7 +44,8 @@ def run(args) -> int:
 
         rate = args.frame_rate or src.frame_rate
         attrs = {"source": str(args.input)} | ({"frame_rate": rate} if rate else {})
-        write_sequence(args.output, blocks(), truth=truth, attrs=attrs, force=args.force)
+        write_sequence(args.output, blocks(), truth=truth, attrs=attrs, force=args.force,
+                       inputs=inputs)
         bar.close()
         log.info("wrote %s: %d frames of %dx%d %s%s", args.output, len(src), src.shape[2],
                     src.shape[1], src.dtype, f", {len(truth)} truth rows" if truth is not None

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from irdetect import tables
 from irdetect.errors import InputError
 from irdetect.io import open_sequence, read_point_annotations, read_results
 
@@ -109,6 +110,9 @@ def evaluate(results_path, truth_path=None, *, gate: float = 3.0) -> dict:
     out = {}
     for title, table, function in SECTIONS:
         if table in results:
+            missing = set(tables.BY_NAME[table].names) - set(results[table].dtype.names)
+            if missing:
+                raise InputError(f"/{table} lacks the fields {sorted(missing)}", results_path)
             out[title] = function(results, truth, ctx)
     if not out:
         raise InputError(f"nothing to score: no {', '.join(t for _, t, _ in SECTIONS)} table",
@@ -141,7 +145,7 @@ def _load_truth(results, results_path, truth_path):
                              "give --truth ANNOTATIONS.txt", p)
         p = found[0]
     if p.suffix.lower() in (".txt", ".csv"):
-        return read_point_annotations(p), None
+        return read_point_annotations(p, results.attrs.get("n_frames")), None
     with open_sequence(p) as src:
         if src.truth is None:
             raise InputError("has no /truth to score against", p)

@@ -50,7 +50,9 @@ def run(args) -> int:
     from irdetect.io import check_output_path, open_sequence, read_results
     from irdetect.plot import plot_results, write_image
 
-    check_output_path(args.output, args.force)
+    if args.scale is not None and not 0.05 <= args.scale <= 16:
+        raise InputError(f"--scale must lie in [0.05, 16], got {args.scale}")
+    check_output_path(args.output, args.force, inputs=(args.results,))
     if not Path(args.results).exists():
         raise InputError("results file not found", args.results)
     results = read_results(args.results)
@@ -66,6 +68,6 @@ def run(args) -> int:
             image = plot_results(results, src, suppressed=not args.raw,
                                  truth=resolve_truth(args.truth, src), scale=args.scale,
                                  gamma=args.gamma, progress=args.progress)
-    write_image(args.output, image, force=args.force)
+    write_image(args.output, image, force=args.force, inputs=(args.results, seq))
     log.info("wrote %s (%dx%d px)", args.output, image.shape[1], image.shape[0])
     return 0
