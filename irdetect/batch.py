@@ -473,13 +473,16 @@ def _tune_dask_worker() -> None:
 
 
 def _remove_temporaries(output: Path) -> None:
-    """Delete temporary files a killed worker left beside ``output`` (``.NAME.*.tmp``)."""
-    for tmp in output.parent.glob(f".{glob.escape(output.name)}.*.tmp"):
-        try:
-            tmp.unlink()
-            log.debug("removed %s left by a dead worker", tmp)
-        except OSError:
+    """Delete the temporary and lock files a killed worker left beside ``output``
+    (``irdetect.io.atomic.OutputLock`` removes them once it holds the lock; a live
+    writer's are left alone)."""
+    from irdetect.io.atomic import OutputLock
+
+    try:
+        with OutputLock(output):
             pass
+    except InputError as exc:      # another run writes it now, or the folder is read-only
+        log.debug("left %s's temporaries: %s", output, exc)
 
 
 def _describe(exc: BaseException) -> str:

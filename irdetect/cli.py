@@ -25,7 +25,7 @@ import sys  # noqa: E402
 
 from irdetect import __version__  # noqa: E402
 from irdetect.errors import InputError  # noqa: E402
-from irdetect.io.atomic import interrupted  # noqa: E402
+from irdetect.io.atomic import interrupted, on_signal, received  # noqa: E402
 
 #: errors of writing a file that are the user's to fix, not irdetect's bugs
 WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EACCES, errno.EPERM,
@@ -81,10 +81,12 @@ def main(argv: list[str] | None = None) -> int:
     _check_finite(parser, args)
     level = logging.ERROR if args.quiet else logging.DEBUG if args.verbose else logging.INFO
     logging.basicConfig(level=level, format="irdetect: %(message)s", stream=sys.stderr)
-    if args.verbose:
-        os.environ["OPENCV_LOG_LEVEL"] = "INFO"
+    if args.verbose:            # the libraries' warnings too
+        import cv2
+        os.environ["OPENCV_FFMPEG_LOGLEVEL"] = "24"      # read when FFmpeg is first used
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_WARNING)
     args.progress = not args.quiet and sys.stderr.isatty()
-    received = _catch_signals()
+    saved = _catch_signals()
     try:
         code = int(args.run(args) or 0)
         if interrupted.is_set():       # a library swallowed the signal's exception
@@ -93,9 +95,10 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as exc:
         return _fail(args, str(exc))
     except KeyboardInterrupt:
-        name = {signal.SIGTERM: "terminated"}.get(received.get("signal"), "interrupted")
+        signum = received[0] if received else signal.SIGINT
+        name = "terminated" if signum == signal.SIGTERM else "interrupted"
         print(f"irdetect {args.command}: {name}", file=sys.stderr)
-        return 128 + int(received.get("signal", signal.SIGINT))
+        return 128 + int(signum)
     except BrokenPipeError:
         # the reader of stdout went away (`irdetect evaluate ... | head -1`): not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
@@ -108,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
         where = f"{exc.filename}: " if exc.filename else ""
         return _fail(args, f"{where}{exc.strerror}")
     finally:
-        _restore_signals(received)
+        _restore_signals(saved)
 
 
 def _check_finite(parser: argparse.ArgumentParser, args) -> None:
@@ -128,25 +131,29 @@ def _fail(args, message: str) -> int:
 
 
 def _catch_signals() -> dict:
-    """SIGINT and SIGTERM raise KeyboardInterrupt in the main thread (so every writer
-    removes its temporary) and set ``irdetect.io.atomic.interrupted`` (so nothing is
-    committed even when the exception was swallowed). Returns what to restore."""
+    """SIGINT and SIGTERM go to ``irdetect.io.atomic.on_signal``: ``KeyboardInterrupt``
+    in the main thread, so every writer removes its temporary, and a flag, so nothing is
+    committed even when a library swallowed the exception. Returns what to restore."""
     interrupted.clear()
-    received = {"handlers": {}}
-
-    def handler(signum, frame):
-        received.setdefault("signal", signum)
-        interrupted.set()
-        raise KeyboardInterrupt
-
+    received.clear()
+    saved = {"handlers": {}, "unraisable": sys.unraisablehook}
     for sig in (signal.SIGINT, signal.SIGTERM):
         try:
-            received["handlers"][sig] = signal.signal(sig, handler)
+            saved["handlers"][sig] = signal.signal(sig, on_signal)
         except ValueError:     # not the main thread (a library caller): leave them
             pass
-    return received
+
+    def unraisable(info):
+        # the signal's exception raised inside a weakref callback or __del__ cannot
+        # propagate; the flag stops the run, so it is not worth a traceback
+        if not (interrupted.is_set() and issubclass(info.exc_type, KeyboardInterrupt)):
+            saved["unraisable"](info)
+
+    sys.unraisablehook = unraisable
+    return saved
 
 
-def _restore_signals(received: dict) -> None:
-    for sig, old in received["handlers"].items():
+def _restore_signals(saved: dict) -> None:
+    for sig, old in saved["handlers"].items():
         signal.signal(sig, old)
+    sys.unraisablehook = saved["unraisable"]

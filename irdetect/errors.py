@@ -33,6 +33,9 @@ def refused_settings(path: str | os.PathLike | None = None):
         yield
     except ValueError as exc:
         raise InputError(f"bad configuration value: {exc}", path) from None
+    except MemoryError:
+        raise InputError("a configuration value asks for more memory than there is",
+                         path) from None
 
 
 def check_input_file(path: str | os.PathLike, what: str = "file") -> None:

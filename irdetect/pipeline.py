@@ -50,7 +50,8 @@ _TIMINGS_LOCK = threading.Lock()
 #: the shortest combined frame a short sequence is run with: 3 of them, 12 frames, is the
 #: shortest sequence ``irdetect process`` takes
 MIN_LENGTH = 4
-#: the longest combined frame a configuration may ask for
+#: the largest integer setting (a size in px or frames: a combined frame's length, a
+#: window, a tile) a configuration may give; 1000 frames already smear any moving target
 MAX_LENGTH = 1000
 #: frames narrower or lower than this are refused (``check_frames``)
 MIN_SIDE = 8
@@ -475,10 +476,14 @@ def check_config(config: ProcessConfig, path=None, frame_shape=(32, 32)) -> None
     """
     from irdetect.initiate import initiate_detections
 
-    length = config.combine.length
-    if not 1 <= length <= MAX_LENGTH:
-        raise InputError(f"combine.length must lie in [1, {MAX_LENGTH}] frames, got {length} "
-                         "(longer combined frames smear every moving target)", path)
+    for stage in dataclasses.fields(config):
+        section = getattr(config, stage.name)
+        for field in dataclasses.fields(section) if dataclasses.is_dataclass(section) else ():
+            value = getattr(section, field.name)
+            if (isinstance(value, int) and not isinstance(value, bool)
+                    and abs(value) > MAX_LENGTH and field.name != "n_theta"):
+                raise InputError(f"{stage.name}.{field.name} = {value}: integer settings (sizes "
+                                 f"in px or frames) lie within +-{MAX_LENGTH}", path)
     h, w = frame_shape
     corners = tables.from_columns(
         tables.DETECTION, x=[0.0, w - 1.0, 0.0, w - 1.0], y=[0.0, 0.0, h - 1.0, h - 1.0],

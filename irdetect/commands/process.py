@@ -104,8 +104,8 @@ def _is_batch(args) -> bool:
         pattern = not path.exists() and any(c in args.inputs[0] for c in "*?[")
         if not pattern and (not path.is_dir() or is_image_folder(path)):
             return False
-        if path.is_dir() and not expand_inputs([path]):
-            raise InputError("the folder holds no images and no sequence files", path)
+        if path.is_dir():
+            expand_inputs([path])       # a folder holding no sequence: named, exit 2
     what = (f"{len(args.inputs)} inputs" if len(args.inputs) > 1
             else "a folder of sequences or a pattern")
     raise InputError(f"{what}: give --out-dir DIR for the results"

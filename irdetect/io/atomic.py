@@ -38,9 +38,36 @@ from irdetect.errors import InputError
 LOCK_SUFFIX = ".irdetect-lock"
 TEMP_TAG = ".irdetect-"
 
-#: set when SIGINT or SIGTERM arrived (by ``irdetect.cli``); no output is committed after
-#: that, even when the signal's exception was swallowed by a library callback
+#: set when SIGINT or SIGTERM arrived (``on_signal``); no output is committed after that,
+#: even when the signal's exception was swallowed by a library callback
 interrupted = threading.Event()
+#: the number of the first signal that arrived
+received: list[int] = []
+#: HDF5 writers open: the signal's exception must not be raised inside the library's
+#: callbacks into GuardedFile, so they raise it themselves at their next block
+_deferring = 0
+
+
+def on_signal(signum, frame) -> None:
+    """The SIGINT / SIGTERM handler ``irdetect.cli`` installs: note the signal and raise
+    ``KeyboardInterrupt``, or, while an HDF5 writer is open, leave that to its next
+    ``check`` (after each block it writes: within milliseconds)."""
+    if not received:
+        received.append(signum)
+    interrupted.set()
+    if not _deferring:
+        raise KeyboardInterrupt
+
+
+@contextmanager
+def deferred_signals():
+    """While in the block, ``on_signal`` only notes a signal (see ``_deferring``)."""
+    global _deferring
+    _deferring += 1
+    try:
+        yield
+    finally:
+        _deferring -= 1
 
 
 def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
@@ -107,7 +134,7 @@ class OutputLock:
             try:
                 fd = os.open(self.lock, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
             except OSError as exc:
-                raise InputError(f"cannot create the lock file ({exc.strerror})",
+                raise InputError(f"cannot write in the output folder ({exc.strerror})",
                                  self.path) from None
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)

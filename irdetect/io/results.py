@@ -19,7 +19,8 @@ import numpy as np
 
 from irdetect import __version__, tables
 from irdetect.errors import InputError, check_input_file
-from irdetect.io.atomic import GuardedFile, atomic_output, check_output_path
+from irdetect.io.atomic import (GuardedFile, atomic_output, check_output_path,
+                                deferred_signals, interrupted)
 
 
 class AtomicH5:
@@ -47,29 +48,38 @@ class AtomicH5:
     def __init__(self, path: str | os.PathLike, *, force: bool = False, inputs=()):
         self.path = check_output_path(path, force, inputs)
         self._output = atomic_output(self.path, force=force, inputs=inputs)
+        self._deferred = deferred_signals()
         self._guard: GuardedFile | None = None
         self.file: h5py.File | None = None
 
     def __enter__(self) -> h5py.File:
         tmp = self._output.__enter__()
+        self._deferred.__enter__()
         try:
             self._guard = GuardedFile(tmp, self.path)
             self.file = h5py.File(self._guard, "w")
         except BaseException:
+            self._deferred.__exit__(None, None, None)
             self._output.__exit__(*sys.exc_info())
             raise
         return self.file
 
     def check(self) -> None:
-        """Raise the first write error (disk full, ...) as an ``InputError`` now."""
+        """Raise the first write error (disk full, ...) as an ``InputError`` now, or
+        ``KeyboardInterrupt`` when SIGINT / SIGTERM arrived and a library swallowed it."""
+        if interrupted.is_set():
+            raise KeyboardInterrupt
         self._guard.check()
 
     def __exit__(self, exc_type, exc, tb):
         try:
-            self.file.close()
-            self._guard.close()
+            try:
+                self.file.close()
+                self._guard.close()
+            finally:
+                self._deferred.__exit__(None, None, None)
             if exc_type is None:
-                self._guard.check()
+                self.check()
         except BaseException:
             if exc_type is None:
                 exc_type, exc, tb = sys.exc_info()
@@ -134,6 +144,7 @@ class ResultsWriter(AtomicH5):
         Rows are buffered (at most ``FLUSH_ROWS`` per table) and written on ``flush()``,
         which leaving the ``with`` block does.
         """
+        self.check()
         if name not in self._pending:
             if name not in self.file:
                 self.file.create_dataset(name, shape=(0,), dtype=rows.dtype, maxshape=(None,),

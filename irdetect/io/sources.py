@@ -363,8 +363,9 @@ class NpySource(FrameSource):
             self._array = np.load(self.path, mmap_mode="r", allow_pickle=False)
         except FileNotFoundError:
             raise InputError("file not found", path) from None
-        except (ValueError, OSError) as exc:
-            raise InputError(f"not a readable .npy file ({_short(exc)})", path) from None
+        except (ValueError, OSError, EOFError) as exc:
+            raise InputError(f"not a readable .npy file ({_short(exc) or 'empty'})", path) \
+                from None
         _check_stack(self.path, self._array.shape, self._array.dtype)
         self.shape = tuple(int(n) for n in self._array.shape)
         self.dtype = self._array.dtype
