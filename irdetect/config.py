@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 import tomllib
 import typing
@@ -156,11 +157,11 @@ class TrackConfig:
     band_below: float = 40.0
     suppress_size: int = 15
     k: float = 4.0
-    min_contrast: float = 8.0
-    min_area: float = 5.0
-    max_area: float = 30.0
-    min_grey: float = 100.0
-    max_grey: float = 180.0
+    min_contrast: float = 0.0
+    min_area: float = 2.0
+    max_area: float = 200.0
+    min_grey: float = -math.inf
+    max_grey: float = math.inf
     max_regions: int = 200
     frame_interval: float = 1.0
     q0: float = 0.001
@@ -173,7 +174,7 @@ class TrackConfig:
     w_grey: float = 1.0
     w_area: float = 1.0
     w_direction: float = 1.0
-    grey_scale: float = 20.0
+    grey_scale: float = 4.5
     area_scale: float = 0.5
     direction_after: int = 3
     min_speed: float = 0.2

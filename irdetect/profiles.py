@@ -18,7 +18,11 @@ docs/results/throughput.md and docs/results/profiles.md):
 ``paper``
     The paper's variant (Wan & Askar 2008), for comparison: max projection, the paper's
     grouping, no verification; the chains keep the one-to-one resolution and the score
-    test (with the paper's unique correspondence nothing survives at k 3.5).
+    test (with the paper's unique correspondence nothing survives at k 3.5). For
+    ``irdetect track``: Cheng et al.'s absolute grey and area gates of their harbour.
+``maritime``
+    ``irdetect track`` on sea scenes only: the sea-sky band, 5.5 robust sigmas and 5 px
+    against waves and glints (``process`` runs it as the default).
 """
 
 from __future__ import annotations

@@ -178,7 +178,7 @@ def test_track_on_frames_streams_and_windows_do_not_matter():
     ({"method": "kalman"}, "method must be one of"), ({"window": 0}, "window must be >= 1"),
     ({"gate": 0.0}, "gate must be > 0"), ({"beta": 1.0}, "beta must be in"),
     ({"confirm_hits": 6}, "confirm_hits"), ({"suppress_size": 4}, "suppress_size"),
-    ({"min_area": 40.0}, "min_area"), ({"sea_sky": True, "band_below": -1.0}, "band_above")])
+    ({"min_area": 400.0}, "min_area"), ({"sea_sky": True, "band_below": -1.0}, "band_above")])
 def test_bad_parameters_are_named(kwargs, match):
     with pytest.raises(ValueError, match=match):
         track(np.zeros((2, 30, 30)), **kwargs)
@@ -193,7 +193,7 @@ def test_config_mirrors_track_keywords():
 def test_harbour_merge_keeps_both_ids():
     from irdetect.simulate.harbour import simulate_harbour
     frames, truth = simulate_harbour(n_frames=160, merge_frame=40, rng=5)   # T4 not yet in
-    points, summary = track(frames, sea_sky=True)
+    points, summary = track(frames, sea_sky=True, k=5.5, min_area=5.0)   # the maritime profile
     r = clear_mot(truth, points, gate=5)
     assert r["id_switches"] == 0 and r["mota"] > 0.95 and len(summary) == 3
     ids = _ids_by_target(points, truth[(truth["frame"] < 35) | (truth["frame"] > 145)])

@@ -9,12 +9,14 @@ Writes /track_points (one row per track per frame) and /tracks (one row per trac
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from pathlib import Path
 
 import numpy as np
 
-from irdetect.config import load_config, to_json
+from irdetect.config import to_json
+from irdetect.profiles import load_profile
 from irdetect.errors import refused_settings
 from irdetect.io import ResultsWriter, check_output_path, open_sequence
 
@@ -26,6 +28,10 @@ def add_arguments(p):
     p.add_argument("-o", "--output",
                    help="results file (default: INPUT_NAME.track.h5 in the current folder)")
     p.add_argument("--config", help="TOML file; its [track] table sets the tracker (docs/tracking.md)")
+    p.add_argument("--profile", default="default", metavar="NAME",
+                   help="default (gates relative to the measured noise, any sensor), maritime "
+                   "(sea scenes: the sea-sky band, 5.5 sigmas and 5 px against waves and glints) "
+                   "or paper (the paper's absolute grey and area gates of its harbour scene)")
     p.add_argument("--method", choices=["fcm-pmht", "gnn"],
                    help="FCM + adaptive PMHT (default) or the CV Kalman + GNN baseline")
     p.add_argument("--sea-sky", action="store_true", default=None,
@@ -40,7 +46,8 @@ def run(args) -> int:
 
     overrides = {k: v for k, v in (("method", args.method), ("sea_sky", args.sea_sky))
                  if v is not None}
-    config = load_config(args.config, overrides={"track": overrides})
+    config = load_profile(args.profile, args.config)
+    config = dataclasses.replace(config, track=dataclasses.replace(config.track, **overrides))
     path = Path(args.input)
     output = Path(args.output or f"{path.name if path.is_dir() else path.stem}.track.h5")
     check_output_path(output, args.force, inputs=(args.input,))

@@ -9,7 +9,7 @@ import numpy as np
 from tqdm import tqdm
 
 from irdetect import tables
-from irdetect.track.regions import extract_regions
+from irdetect.track.regions import extract_regions, residual_level
 from irdetect.track.seasky import find_sea_sky_line, sea_sky_band
 from irdetect.track.tracker import FCMPMHTTracker, GNNTracker
 
@@ -21,12 +21,12 @@ METHODS = ("fcm-pmht", "gnn")
 def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bool = False, *,
           method: str = "fcm-pmht", sea_sky: bool = False, band_above: float = 5.0,
           band_below: float = 40.0, suppress_size: int = 15, k: float = 4.0,
-          min_contrast: float = 8.0, min_area: float = 5.0, max_area: float = 30.0,
-          min_grey: float = 100.0, max_grey: float = 180.0, max_regions: int = 200,
+          min_contrast: float = 0.0, min_area: float = 2.0, max_area: float = 200.0,
+          min_grey: float = -np.inf, max_grey: float = np.inf, max_regions: int = 200,
           frame_interval: float = 1.0, q0: float = 1e-3, r: float = 0.5,
           adaptive: bool = True, beta: float = 0.9, m: float = 2.0, gate: float = 4.0,
           w_position: float = 1.0, w_grey: float = 1.0, w_area: float = 1.0,
-          w_direction: float = 1.0, grey_scale: float = 20.0, area_scale: float = 0.5,
+          w_direction: float = 1.0, grey_scale: float = 4.5, area_scale: float = 0.5,
           direction_after: int = 3, min_speed: float = 0.2, confirm_hits: int = 3,
           confirm_window: int = 5, max_misses: int = 12, max_merged: int = 150,
           merge_margin: float = 1.0, max_tracks: int = 50, init_speed: float = 2.0,
@@ -53,9 +53,19 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     suppress_size, k, min_contrast, min_area, max_area, min_grey, max_grey, max_regions
         Region extraction, see :func:`irdetect.track.regions.extract_regions`. Regions up to
         2 x ``max_area`` are kept, because two merged targets make one region of up to twice
-        the area; those larger than ``max_area`` feed existing tracks but start none.
+        the area; those larger than ``max_area`` feed existing tracks but start none. The
+        defaults hold for any dtype, background and noise level: the threshold is 4
+        robust sigmas of the suppressed frame, no grey gate, areas 2-200 px (a lone noise
+        pixel stays out). Sea scenes, whose glints are small bright regions and whose
+        waves cross 4 sigmas, take the ``maritime`` profile (sea-sky band, 5.5 sigmas,
+        5 px); the paper's absolute gates are the ``paper`` profile (data/profiles/).
+    grey_scale : float
+        Grey difference counted as one unit of FCM distance, in robust sigmas of the
+        first frame's suppressed residual (``irdetect.track.regions.residual_level``),
+        so it means the same on any sensor (4.5 sigmas: the paper's 20 grey levels on
+        the harbour scene, whose residual sigma is 4.4).
     frame_interval, q0, r, adaptive, beta, m, gate, w_position, w_grey, w_area, w_direction,
-    grey_scale, area_scale, direction_after, min_speed, confirm_hits, confirm_window,
+    area_scale, direction_after, min_speed, confirm_hits, confirm_window,
     max_misses, max_merged, merge_margin, max_tracks, init_speed, feature_memory
         Tracker parameters, see :class:`irdetect.track.tracker.FCMPMHTTracker` (the GNN
         baseline ignores the FCM, adaptive-noise and merge ones).
@@ -89,6 +99,11 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     if len(frames.shape) != 3:
         raise ValueError(f"frames must be (T, H, W), got shape {frames.shape}")
     n, h, w = frames.shape
+    if not grey_scale > 0:
+        raise ValueError(f"grey_scale must be > 0, got {grey_scale!r}")
+    # grey differences in sigmas of the first frame's residual: measured once per run
+    sigma = residual_level(np.asarray(frames[0]), suppress_size)[1] if n else 1.0
+    grey_levels = grey_scale * (sigma if np.isfinite(sigma) and sigma > 0 else 1.0)
     common = dict(frame_interval=frame_interval, q0=q0, r=r, gate=gate,
                   confirm_hits=confirm_hits, confirm_window=confirm_window,
                   max_misses=max_misses, max_tracks=max_tracks, init_speed=init_speed,
@@ -98,7 +113,7 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     else:
         tracker = FCMPMHTTracker(
             adaptive=adaptive, beta=beta, m=m, w_position=w_position, w_grey=w_grey,
-            w_area=w_area, w_direction=w_direction, grey_scale=grey_scale,
+            w_area=w_area, w_direction=w_direction, grey_scale=grey_levels,
             area_scale=area_scale, direction_after=direction_after, min_speed=min_speed,
             max_merged=max_merged, merge_margin=merge_margin, **common)
     region_kw = dict(suppress_size=suppress_size, k=k, min_contrast=min_contrast,
@@ -127,6 +142,6 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
                 emit(pts)
             bar.update(len(block))
     summary = tracker.finish()
-    log.info("tracked %d frames: %d regions, %d confirmed tracks", n, n_regions, len(summary))
+    log.debug("tracked %d frames: %d regions, %d confirmed tracks", n, n_regions, len(summary))
     points = np.concatenate(chunks) if chunks else tables.empty(tables.TRACK_POINT)
     return points, summary
