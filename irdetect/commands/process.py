@@ -31,8 +31,8 @@ DEFAULT_THREADS = 2
 
 def add_arguments(p):
     p.add_argument("inputs", nargs="+", metavar="INPUT",
-                   help="sequence: HDF5 file, folder of images, video file or .npy; several "
-                   "inputs, folders of sequences or glob patterns with --out-dir")
+                   help="sequence: HDF5 file, folder of images, multi-page TIFF, video file or "
+                   ".npy; several inputs, folders of sequences or glob patterns with --out-dir")
     p.add_argument("-o", "--output",
                    help="results file of a single input (default: INPUT_NAME.irdetect.h5 in "
                    "the current folder)")

@@ -17,7 +17,8 @@ from irdetect.errors import InputError
 
 def add_arguments(p, *, standalone: bool = True):
     if standalone:
-        p.add_argument("input", help="sequence: HDF5 file, folder of images, video file or .npy")
+        p.add_argument("input", help="sequence: HDF5 file, folder of images, "
+                                "multi-page TIFF, video file or .npy")
         p.add_argument("results", help="results file of `irdetect process` (or track)")
         p.add_argument("-o", "--output", required=True,
                        help="out.mp4, out.avi, or a folder name (no suffix) for PNG frames")
