@@ -26,14 +26,15 @@ from pathlib import Path
 import numpy as np
 
 from irdetect.errors import InputError
-from irdetect.io import open_sequence, read_point_annotations, read_results
+from irdetect.io import read_results
 
 
 def add_arguments(p):
     p.add_argument("results", help="results file written by irdetect process")
-    p.add_argument("--truth", help="sequence file with /truth, a text file of 'x y' per "
-                   "frame, or a folder of frames with truth.txt in it or beside it (default: "
-                   "the results file's input, when it has truth)")
+    p.add_argument("--truth", metavar="FILE",
+                   help="a sequence with /truth, a text file of 'x y' per frame, or a "
+                   "recording folder (default: the results' input sequence: its /truth or "
+                   "its recording folder's truth.txt)")
     p.add_argument("--gate", type=float, default=3.0,
                    help="match distance in px between a detection and the true path (3)")
     p.add_argument("--json", action="store_true", help="print the scores as JSON")
@@ -117,35 +118,26 @@ def evaluate(results_path, truth_path=None, *, gate: float = 3.0) -> dict:
 
 
 def _load_truth(results, results_path, truth_path):
-    """(TRUTH table, sequence shape or None)."""
+    """(TRUTH table, sequence shape or None): ``--truth``, else the truth of the results'
+    input sequence, by the rule of ``irdetect.io.find_truth``."""
+    from irdetect.io import find_truth
+
+    sequence = None
     if truth_path is None:
         candidates = [results.attrs.get("input_path"), results.attrs.get("input")]
         folder = Path(results_path).resolve().parent
         for name in filter(None, candidates):
             for path in (Path(name), folder / name):
                 if path.exists():
-                    truth_path = path
+                    sequence = path
                     break
-            if truth_path is not None:
+            if sequence is not None:
                 break
-        if truth_path is None:
+        if sequence is None:
             raise InputError("no --truth given and the results' input file was not found",
                              results_path)
-    p = Path(truth_path)
-    if p.is_dir():
-        # a folder of frames: its point annotations sit in it or beside it
-        # (../shared/data/real/NAME/{frames/, truth.txt})
-        found = [q / "truth.txt" for q in (p, p.parent) if (q / "truth.txt").is_file()]
-        if not found:
-            raise InputError("a folder of frames has no truth.txt in it or beside it; "
-                             "give --truth ANNOTATIONS.txt", p)
-        p = found[0]
-    if p.suffix.lower() in (".txt", ".csv"):
-        return read_point_annotations(p), None
-    with open_sequence(p) as src:
-        if src.truth is None:
-            raise InputError("has no /truth to score against", p)
-        return src.truth, tuple(src.shape)
+    found = find_truth(truth_path, sequence=sequence)
+    return found.table, found.shape
 
 
 def format_table(scores: dict) -> str:

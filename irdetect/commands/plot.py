@@ -25,7 +25,9 @@ def add_arguments(p):
     p.add_argument("--raw", action="store_true",
                    help="max projection of the raw frames (default: of the suppressed frames)")
     p.add_argument("--truth", nargs="?", const=True, default=None, metavar="FILE",
-                   help="draw ground truth paths in green (the sequence's /truth or FILE)")
+                   help="draw ground truth: alone, the sequence's /truth or its recording "
+                   "folder's truth.txt; or FILE (a sequence with /truth, a text file of "
+                   "'x y' per frame, or a recording folder)")
     p.add_argument("--scale", type=float, help="output pixels per source pixel")
     p.add_argument("--gamma", type=float, default=1.0, help="display gamma (default 1)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")

@@ -3,6 +3,8 @@
 from irdetect.io.results import (AtomicH5, Results, ResultsWriter, check_output_path,
                                  read_point_annotations, read_results, write_sequence)
 from irdetect.io.sources import FrameSource, open_sequence
+from irdetect.io.truth import NO_TRUTH, Truth, find_truth
 
-__all__ = ["AtomicH5", "FrameSource", "Results", "ResultsWriter", "check_output_path",
-           "open_sequence", "read_point_annotations", "read_results", "write_sequence"]
+__all__ = ["AtomicH5", "FrameSource", "NO_TRUTH", "Results", "ResultsWriter", "Truth",
+           "check_output_path", "find_truth", "open_sequence", "read_point_annotations",
+           "read_results", "write_sequence"]
