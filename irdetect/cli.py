@@ -24,6 +24,7 @@ COMMANDS = [
     ("evaluate", "evaluate", "score a results file against ground truth"),
     ("video", "video", "write an annotated video (.mp4, .avi or PNG frames) of a sequence and its results"),
     ("plot", "plot", "draw the tracks over the max projection and the Hough accumulator"),
+    ("export", "export", "write results as CSV, MOTChallenge text or JSON for other tools"),
     ("track", "track", "track small targets frame by frame (FCM + adaptive PMHT)"),
     ("initiate", "initiate", "initiate tracks on radar-style scans (Hough + SC, fuzzy parallel Hough, M/N)"),
     ("simulate-scans", "simulate_scans", "write simulated radar-style scans (zhang2010, liang2015)"),

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -73,6 +74,29 @@ class AtomicH5:
             if os.path.exists(self._tmp):
                 os.unlink(self._tmp)
         return False
+
+
+@contextmanager
+def atomic_path(path: str | os.PathLike, *, force: bool = False):
+    """A temporary file name beside ``path`` that becomes ``path`` when the ``with`` block
+    succeeds (renamed into place, mode 0666 less the umask); on failure it is removed.
+
+    Examples
+    --------
+    >>> with atomic_path("table.csv") as tmp:          # doctest: +SKIP
+    ...     Path(tmp).write_text("x,y\n1,2\n")
+    """
+    path = check_output_path(path, force)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}",
+                               dir=path.parent)
+    os.close(fd)
+    try:
+        yield tmp
+        os.chmod(tmp, 0o666 & ~_umask())               # mkstemp makes it private (0600)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
 
 
 def _umask() -> int:
@@ -160,7 +184,17 @@ class ResultsWriter(AtomicH5):
 
 @dataclass
 class Results:
-    """A results file read back: its tables and root attributes."""
+    """A results file read back: its tables and root attributes.
+
+    Attributes
+    ----------
+    path : str
+    tables : dict
+        Table name (``detections``, ``tracks``, ...) -> structured ndarray, or
+        ``pandas.DataFrame`` (one column per field) when read with ``as_frame=True``.
+    attrs : dict
+        Root attributes (``irdetect_version``, ``input``, ``combined_length``, ...).
+    """
 
     path: str
     tables: dict = field(default_factory=dict)
@@ -178,14 +212,40 @@ class Results:
         return json.loads(self.attrs.get("config", "{}"))
 
 
-def read_results(path: str | os.PathLike) -> Results:
+def read_results(path: str | os.PathLike, *, as_frame: bool | None = False) -> Results:
     """Read every table and root attribute of a results file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A results file (``docs/format.md``).
+    as_frame : bool or None
+        False (default here): tables as numpy structured arrays; True: as
+        ``pandas.DataFrame`` (pandas must be installed); None: DataFrames when pandas is
+        installed, else arrays (the default of ``irdetect.read_results``).
 
     Raises
     ------
     InputError
         Missing or unreadable file.
+    ImportError
+        ``as_frame=True`` without pandas.
     """
+    results = _read_results(path)
+    if as_frame is False:
+        return results
+    try:
+        import pandas as pd
+    except ImportError:
+        if as_frame:
+            raise ImportError("read_results(as_frame=True) needs pandas: "
+                              "pip install irdetect[pandas]") from None
+        return results
+    results.tables = {name: pd.DataFrame(table) for name, table in results.tables.items()}
+    return results
+
+
+def _read_results(path) -> Results:
     try:
         with h5py.File(path, "r") as f:
             found = {}
