@@ -28,8 +28,8 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    check_output_path(args.output, args.force)
-    with open_sequence(args.input, args.dataset) as src:
+    with open_sequence(args.input, args.dataset) as src:     # a missing input is said first
+        check_output_path(args.output, args.force)
         truth = (read_point_annotations(args.truth, len(src)) if args.truth else src.truth)
         bar = tqdm(total=len(src), unit="frame", disable=not args.progress, desc="convert")
 

@@ -48,7 +48,7 @@ def add_arguments(p):
                    "with --profile, applied on top of the profile")
     p.add_argument("--profile", default="default", metavar="NAME",
                    help=f"named configuration: {', '.join(profile_names())} (default: "
-                   "default; `fast`: no matched-filter verification and no fast band, "
+                   "default; fast: no matched-filter verification and no fast band, "
                    "3-4x the frames per CPU-second, for targets of SNR >= 3 up to about 2 "
                    "px/frame; docs/cli.md)")
     p.add_argument("--threads", type=int, metavar="N",

@@ -19,7 +19,7 @@ def add_arguments(p, *, standalone: bool = True):
     if standalone:
         p.add_argument("input", help="sequence: HDF5 file, folder of images, "
                                 "multi-page TIFF, video file or .npy")
-        p.add_argument("results", help="results file of `irdetect process` (or track)")
+        p.add_argument("results", help="results file of irdetect process (or track)")
         p.add_argument("-o", "--output", required=True,
                        help="out.mp4, out.avi, or a folder name (no suffix) for PNG frames")
         p.add_argument("--dataset", help="HDF5 input: dataset path (default /frames)")
