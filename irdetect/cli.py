@@ -1,19 +1,35 @@
 """Command-line interface: argparse subcommands over the library.
 
 Each subcommand lives in ``irdetect/commands/<name>.py`` with ``add_arguments(parser)``
-and ``run(args) -> int``; this module only wires them. User errors (``InputError``)
-end with exit code 2 and one line on stderr, never a traceback.
+and ``run(args) -> int``; this module only wires them. User errors (``InputError``), write
+errors (disk full, no permission) and lack of memory end with exit code 2 and one line on
+stderr, never a traceback; SIGINT and SIGTERM end with 130 and 143, leaving no output
+(docs/reliability.md).
 """
 
 from __future__ import annotations
 
-import argparse
-import importlib
-import logging
-import sys
+import os
 
-from irdetect import __version__
-from irdetect.errors import InputError
+# OpenCV's and FFmpeg's own log lines stay off stderr unless -v (read when cv2 loads)
+os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+
+import argparse  # noqa: E402
+import errno  # noqa: E402
+import importlib  # noqa: E402
+import logging  # noqa: E402
+import math  # noqa: E402
+import signal  # noqa: E402
+import sys  # noqa: E402
+
+from irdetect import __version__  # noqa: E402
+from irdetect.errors import InputError  # noqa: E402
+from irdetect.io.atomic import interrupted  # noqa: E402
+
+#: errors of writing a file that are the user's to fix, not irdetect's bugs
+WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EACCES, errno.EPERM,
+                errno.EROFS, errno.EIO, errno.ENAMETOOLONG}
 
 #: (subcommand, module under irdetect.commands, one-line help)
 COMMANDS = [
@@ -31,16 +47,24 @@ COMMANDS = [
 ]
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its errors on one line (the usage is one ``--help`` away)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="irdetect", description="Find dim point targets in infrared image sequences "
         "and initiate their tracks.")
     parser.add_argument("--version", action="version", version=f"irdetect {__version__}")
-    common = argparse.ArgumentParser(add_help=False)
+    common = _Parser(add_help=False)
     common.add_argument("-v", "--verbose", action="count", default=0, help="debug log output")
     common.add_argument("-q", "--quiet", action="store_true",
                         help="only errors; no progress bar")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True,
+                                parser_class=_Parser)
     for name, module_name, help_text in COMMANDS:
         module = importlib.import_module(f"irdetect.commands.{module_name}")
         p = sub.add_parser(name, parents=[common], help=help_text,
@@ -51,17 +75,79 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the CLI; returns the exit code (0 ok, 1 failure, 2 bad input)."""
+    """Run the CLI; returns the exit code (0 ok, 1 failure, 2 bad input, 130 / 143 on
+    SIGINT / SIGTERM)."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    _check_finite(parser, args)
     level = logging.ERROR if args.quiet else logging.DEBUG if args.verbose else logging.INFO
     logging.basicConfig(level=level, format="irdetect: %(message)s", stream=sys.stderr)
+    if args.verbose:
+        os.environ["OPENCV_LOG_LEVEL"] = "INFO"
     args.progress = not args.quiet and sys.stderr.isatty()
+    received = _catch_signals()
     try:
-        return int(args.run(args) or 0)
+        code = int(args.run(args) or 0)
+        if interrupted.is_set():       # a library swallowed the signal's exception
+            raise KeyboardInterrupt
+        return code
     except InputError as exc:
-        print(f"irdetect {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+        return _fail(args, str(exc))
     except KeyboardInterrupt:
-        print(f"irdetect {args.command}: interrupted", file=sys.stderr)
-        return 130
+        name = {signal.SIGTERM: "terminated"}.get(received.get("signal"), "interrupted")
+        print(f"irdetect {args.command}: {name}", file=sys.stderr)
+        return 128 + int(received.get("signal", signal.SIGINT))
+    except BrokenPipeError:
+        # the reader of stdout went away (`irdetect evaluate ... | head -1`): not an error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    except MemoryError:
+        return _fail(args, "not enough memory for this input and configuration")
+    except OSError as exc:
+        if exc.errno not in WRITE_ERRNOS:
+            raise
+        where = f"{exc.filename}: " if exc.filename else ""
+        return _fail(args, f"{where}{exc.strerror}")
+    finally:
+        _restore_signals(received)
+
+
+def _check_finite(parser: argparse.ArgumentParser, args) -> None:
+    """Refuse NaN and inf in every numeric option (argparse's float() accepts them)."""
+    sub = parser._subparsers._group_actions[0].choices[args.command]
+    for action in sub._actions:
+        value = getattr(args, action.dest, None)
+        values = value if isinstance(value, (list, tuple)) else [value]
+        if any(isinstance(v, float) and not math.isfinite(v) for v in values):
+            sub.error(f"argument {'/'.join(action.option_strings) or action.dest}: "
+                      f"must be a finite number, got {value}")
+
+
+def _fail(args, message: str) -> int:
+    print(f"irdetect {args.command}: error: {message}", file=sys.stderr)
+    return 2
+
+
+def _catch_signals() -> dict:
+    """SIGINT and SIGTERM raise KeyboardInterrupt in the main thread (so every writer
+    removes its temporary) and set ``irdetect.io.atomic.interrupted`` (so nothing is
+    committed even when the exception was swallowed). Returns what to restore."""
+    interrupted.clear()
+    received = {"handlers": {}}
+
+    def handler(signum, frame):
+        received.setdefault("signal", signum)
+        interrupted.set()
+        raise KeyboardInterrupt
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            received["handlers"][sig] = signal.signal(sig, handler)
+        except ValueError:     # not the main thread (a library caller): leave them
+            pass
+    return received
+
+
+def _restore_signals(received: dict) -> None:
+    for sig, old in received["handlers"].items():
+        signal.signal(sig, old)

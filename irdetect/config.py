@@ -23,7 +23,7 @@ import tomllib
 import typing
 from dataclasses import dataclass, field
 
-from irdetect.errors import InputError
+from irdetect.errors import InputError, check_input_file
 
 
 # --- detection front end (wan2008; issue 3) -------------------------------------------
@@ -243,11 +243,12 @@ def _check_value(kind, value, where, path):
 
 def read_toml(path: str | os.PathLike) -> dict:
     """A TOML file as a dict; a missing or invalid file is an InputError naming it."""
+    check_input_file(path, "TOML file")
     try:
         with open(path, "rb") as fh:
             return tomllib.load(fh)
-    except FileNotFoundError:
-        raise InputError("file not found", path) from None
+    except OSError as exc:
+        raise InputError(f"cannot read ({exc.strerror or exc})", path) from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise InputError(f"not a valid TOML file ({exc})", path) from None
 

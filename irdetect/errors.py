@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import stat
 from contextlib import contextmanager
 
 
@@ -32,3 +33,25 @@ def refused_settings(path: str | os.PathLike | None = None):
         yield
     except ValueError as exc:
         raise InputError(f"bad configuration value: {exc}", path) from None
+
+
+def check_input_file(path: str | os.PathLike, what: str = "file") -> None:
+    """Refuse a missing path or one that is not a regular file (a folder, a FIFO, a device,
+    a socket) before anything opens it: opening a FIFO blocks until a writer appears.
+
+    Raises
+    ------
+    InputError
+        ``"{what} not found"``, or not a regular file.
+    """
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        raise InputError(f"{what} not found", path) from None
+    except OSError as exc:
+        raise InputError(f"cannot read the {what} ({exc.strerror})", path) from None
+    if stat.S_ISDIR(mode):
+        raise InputError(f"a folder, not a {what}", path)
+    if not stat.S_ISREG(mode):
+        raise InputError(f"not a regular file (a FIFO, device or socket); expected a {what}",
+                         path)

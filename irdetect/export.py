@@ -29,7 +29,7 @@ import numpy as np
 
 from irdetect import tables
 from irdetect.errors import InputError
-from irdetect.io.results import atomic_path, check_output_path
+from irdetect.io.atomic import atomic_output, check_output_path
 
 FORMATS = ("csv", "mot", "json")
 
@@ -153,15 +153,16 @@ def export_results(results, folder: str | os.PathLike, fmt: str, *, box: float =
     if not folder.is_dir():
         check_output_path(folder, force=False)                 # the parent must exist
         folder.mkdir()
+    inputs = (results.path,)
     for path in paths:
-        check_output_path(path, force)
+        check_output_path(path, force, inputs)
     positions = track_positions(results)
     if fmt == "csv":
         for path, table in zip(paths, (_table(results, "detections"),
                                        _table(results, "tracks"), positions)):
-            _write_csv(path, table, force=force)
+            _write_csv(path, table, force=force, inputs=inputs)
     elif fmt == "mot":
-        with atomic_path(paths[0], force=force) as tmp:
+        with atomic_output(paths[0], force=force, inputs=inputs, suffix=paths[0].suffix) as tmp:
             np.savetxt(tmp, mot_rows(positions, box=box), delimiter=",",
                        fmt=["%d", "%d", "%.3f", "%.3f", "%g", "%g", "%.6g", "%d", "%d", "%d"])
     else:
@@ -169,7 +170,7 @@ def export_results(results, folder: str | os.PathLike, fmt: str, *, box: float =
                "config": results.config,
                "tables": {name: _records(t) for name, t in results.tables.items()},
                "track_positions": _records(positions)}
-        with atomic_path(paths[0], force=force) as tmp:
+        with atomic_output(paths[0], force=force, inputs=inputs, suffix=paths[0].suffix) as tmp:
             Path(tmp).write_text(json.dumps(doc, default=_plain, allow_nan=False) + "\n",
                                  encoding="utf-8")
     return paths
@@ -179,10 +180,10 @@ def _table(results, name):
     return np.asarray(results[name]) if name in results else tables.empty(name)
 
 
-def _write_csv(path, table: np.ndarray, *, force: bool) -> None:
+def _write_csv(path, table: np.ndarray, *, force: bool, inputs=()) -> None:
     names = table.dtype.names
-    with atomic_path(path, force=force) as tmp, open(tmp, "w", newline="",
-                                                     encoding="utf-8") as fh:
+    with atomic_output(path, force=force, inputs=inputs, suffix=".csv") as tmp, \
+            open(tmp, "w", newline="", encoding="utf-8") as fh:
         writer = csv.writer(fh)
         writer.writerow(names)
         columns = [table[n].tolist() for n in names]

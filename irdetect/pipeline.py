@@ -37,6 +37,7 @@ from irdetect.correlate import (DP_LEADS, Correlation, Evidence, correlate, matc
 from irdetect.detect import detect
 from irdetect.errors import InputError, refused_settings
 from irdetect.fuse import fuse
+from irdetect.io.sources import FrameSource
 from irdetect.suppress import future_frames, past_frames, suppress
 
 log = logging.getLogger(__name__)
@@ -49,6 +50,14 @@ _TIMINGS_LOCK = threading.Lock()
 #: the shortest combined frame a short sequence is run with: 3 of them, 12 frames, is the
 #: shortest sequence ``irdetect process`` takes
 MIN_LENGTH = 4
+#: the longest combined frame a configuration may ask for
+MAX_LENGTH = 1000
+#: frames narrower or lower than this are refused (``check_frames``)
+MIN_SIDE = 8
+#: memory per pixel of a window's frames a run holds at once, with margin: raw and float
+#: frames, suppressed frames, the combined frames' maps (peak 364 MB at 640x512 with 12
+#: frames, docs/results/throughput.md, of which ~150 MB are the libraries)
+WINDOW_BYTES_PER_PIXEL = 64
 
 
 def min_frames(config: ProcessConfig | None = None) -> int:
@@ -451,18 +460,55 @@ def detect_sequence(frames, config: ProcessConfig | None = None, *,
     return out
 
 
-def check_config(config: ProcessConfig, path=None) -> None:
+def check_config(config: ProcessConfig, path=None, frame_shape=(32, 32)) -> None:
     """Check every stage's parameters before a run: the stages' own checks, on blank
-    frames (``detect_sequence`` over 3 combined frames of 32 x 32 zeros, a few ms).
+    frames (``detect_sequence`` over 3 combined frames of 32 x 32 zeros, a few ms), and
+    the track initiation's grid on detections at the corners of a frame of
+    ``frame_shape`` (H, W).
 
     Raises
     ------
     InputError
-        A parameter a stage refuses (out of range, unknown choice), naming ``path`` (the
-        configuration file): otherwise the stage would raise mid-run, after minutes.
+        A parameter a stage refuses (out of range, unknown choice, a grid too fine for
+        the frame), naming ``path`` (the configuration file): otherwise the stage would
+        raise mid-run, after minutes.
     """
+    from irdetect.initiate import initiate_detections
+
+    length = config.combine.length
+    if not 1 <= length <= MAX_LENGTH:
+        raise InputError(f"combine.length must lie in [1, {MAX_LENGTH}] frames, got {length} "
+                         "(longer combined frames smear every moving target)", path)
+    h, w = frame_shape
+    corners = tables.from_columns(
+        tables.DETECTION, x=[0.0, w - 1.0, 0.0, w - 1.0], y=[0.0, 0.0, h - 1.0, h - 1.0],
+        frame_start=[0, 0, 36, 36], frame_end=[11, 11, 47, 47], combined_frame=[0, 0, 3, 3])
     with refused_settings(path):
         detect_sequence(np.zeros((min_frames(config), 32, 32), np.float32), config)
+        initiate_detections(corners, **asdict(config.initiate))
+
+
+def check_frames(shape, config: ProcessConfig, path=None) -> None:
+    """Refuse frames a run cannot use before it starts: frames smaller than ``MIN_SIDE``
+    px a side (no room for a target and its background), or a window of frames larger
+    than the memory available (estimated as ``WINDOW_BYTES_PER_PIXEL`` bytes per pixel
+    of the combined frame's ``length`` frames).
+
+    Parameters
+    ----------
+    shape : tuple of int
+        (T, H, W) of the sequence.
+    """
+    _, h, w = shape
+    if min(h, w) < MIN_SIDE:
+        raise InputError(f"frames of {w}x{h} px are too small: a target and its "
+                         f"background need at least {MIN_SIDE}x{MIN_SIDE} px", path)
+    need = WINDOW_BYTES_PER_PIXEL * config.combine.length * h * w
+    available = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    if need > available:
+        raise InputError(f"a window of {config.combine.length} frames of {w}x{h} px needs "
+                         f"about {need / 2**30:.1f} GiB, {available / 2**30:.1f} GiB free "
+                         "(use shorter combined frames or smaller frames)", path)
 
 
 def initiate_tracks(detections: np.ndarray, config: ProcessConfig,
@@ -579,7 +625,7 @@ def process_file(input, output, config: ProcessConfig | None = None, *, dataset=
 
     config = config or ProcessConfig()
     t0 = time.perf_counter()
-    check_output_path(output, force)
+    check_output_path(output, force, inputs=(input,))
     counts = {"candidates": 0, "detections": 0, "segments": 0}
     with open_sequence(input, dataset) as src:
         n_frames, height, width = src.shape
@@ -587,6 +633,8 @@ def process_file(input, output, config: ProcessConfig | None = None, *, dataset=
             run = fit_config(config, n_frames)
         except ValueError as exc:
             raise InputError(str(exc), input) from None
+        check_frames(src.shape, run, input)
+        check_config(run, frame_shape=(height, width))
         attrs = {"config": to_json(run), "input": os.fspath(Path(input).name),
                  "input_path": os.fspath(Path(input).resolve()),
                  "combined_length": run.combine.length,
@@ -600,7 +648,7 @@ def process_file(input, output, config: ProcessConfig | None = None, *, dataset=
             log.info("%d frames: combined frames of %d frames instead of %d (a short sequence)",
                      n_frames, run.combine.length, config.combine.length)
         detections, camera = [], []
-        with ResultsWriter(output, force=force, attrs=attrs) as out:
+        with ResultsWriter(output, force=force, attrs=attrs, inputs=(input,)) as out:
             n_combined = 0
             for chunk in iter_results(src, config, progress=progress, workers=workers,
                                       timings=timings):
@@ -755,6 +803,13 @@ class _Reader:
             self.frames.read_into(start, stop, out)
         else:
             out[...] = self.frames[start:stop]
+        # a file's frames must be finite (docs/format.md; arrays given to detect_sequence
+        # may hold NaN, which finds nothing there); NaN or inf anywhere makes the sum
+        # non-finite: one pass, no mask allocated
+        if (out.dtype.kind == "f" and isinstance(self.frames, FrameSource)
+                and not np.isfinite(np.sum(out, dtype=np.float64))):
+            raise InputError(f"frames {start}..{stop - 1} hold NaN or inf values",
+                             getattr(self.frames, "path", None))
         if self.motion is not None and stop > self.measured:
             # frames skipped (windows with gaps) keep the last offset
             first = max(start, self.measured)

@@ -348,22 +348,22 @@ def plot_results(results, source=None, *, suppressed: bool = True, truth=None,
     return fig
 
 
-def write_figure(path, fig, *, force: bool = False) -> Path:
-    """Write a matplotlib figure atomically (temporary file beside it, then rename; mode
-    0666 less the umask).
+def write_figure(path, fig, *, force: bool = False, inputs=()) -> Path:
+    """Write a matplotlib figure atomically (``irdetect.io.atomic_output``: a temporary
+    beside it, then a rename; mode 0666 less the umask); never over one of ``inputs``.
 
     Raises
     ------
     InputError
         Bad path (see ``irdetect.io.check_output_path``) or an unknown image type.
     """
-    from irdetect.io import atomic_path, check_output_path
+    from irdetect.io import atomic_output, check_output_path
 
-    path = check_output_path(path, force)
+    path = check_output_path(path, force, inputs)
     suffix = path.suffix.lower()
     if suffix not in IMAGE_FORMATS:
         raise InputError(f"unknown image type {path.suffix!r} (use .png, .jpg, .tif, .pdf "
                          "or .svg)", path)
-    with atomic_path(path, force=force) as tmp:
+    with atomic_output(path, force=force, inputs=inputs, suffix=suffix) as tmp:
         fig.savefig(tmp, format=IMAGE_FORMATS[suffix])
     return path

@@ -598,8 +598,9 @@ def write_video(source, results, output, *, fps: float | None = None,
         display_limits(np.zeros((2, 2)), low=low, high=high)
         stretch(np.zeros((2, 2), np.uint8), limits=(0, 1), gamma=gamma)
     except ValueError as exc:
-        raise InputError(str(exc)) from None
-    check_video_path(output, force)
+        raise InputError(f"bad --percentiles LOW HIGH or --gamma: {exc}") from None
+    inputs = (results.path, source.path)
+    check_video_path(output, force, inputs)
     check_results_match(results, source.shape, sequence_name=Path(source.path).name)
     overlay = Overlay.from_tables(results.tables, truth)
     style = Style(scale=float(scale), trail=int(trail), candidates=candidates)
@@ -618,7 +619,7 @@ def write_video(source, results, output, *, fps: float | None = None,
                leave=False)
     written, size = 0, None
     tail = None
-    with VideoWriter(output, fps=fps, force=force) as out:
+    with VideoWriter(output, fps=fps, force=force, inputs=inputs) as out:
         for start, block in source.windows(length):
             views = [stretch(block, limits=limits, gamma=gamma)]
             titles = ["raw"]

@@ -28,8 +28,11 @@ def add_arguments(p):
 
 
 def run(args) -> int:
+    if args.frame_rate is not None and not args.frame_rate > 0:
+        raise InputError(f"--frame-rate must be > 0, got {args.frame_rate}")
+    inputs = (args.input, args.truth)
     with open_sequence(args.input, args.dataset) as src:     # a missing input is said first
-        check_output_path(args.output, args.force)
+        check_output_path(args.output, args.force, inputs)
         truth = (read_point_annotations(args.truth, len(src)) if args.truth else src.truth)
         bar = tqdm(total=len(src), unit="frame", disable=not args.progress, desc="convert")
 
@@ -42,7 +45,8 @@ def run(args) -> int:
 
         rate = args.frame_rate or src.frame_rate
         attrs = {"source": str(args.input)} | ({"frame_rate": rate} if rate else {})
-        write_sequence(args.output, blocks(), truth=truth, attrs=attrs, force=args.force)
+        write_sequence(args.output, blocks(), truth=truth, attrs=attrs, force=args.force,
+                       inputs=inputs)
         bar.close()
         log.info("wrote %s: %d frames of %dx%d %s%s", args.output, len(src), src.shape[2],
                     src.shape[1], src.dtype, f", {len(truth)} truth rows" if truth is not None

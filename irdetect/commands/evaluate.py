@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from irdetect import tables
 from irdetect.errors import InputError
 from irdetect.io import read_results
 
@@ -114,6 +115,9 @@ def evaluate(results_path, truth_path=None, *, gate: float = 3.0) -> dict:
     out = {}
     for title, table, function in SECTIONS:
         if table in results:
+            missing = set(tables.BY_NAME[table].names) - set(results[table].dtype.names)
+            if missing:
+                raise InputError(f"/{table} lacks the fields {sorted(missing)}", results_path)
             out[title] = function(results, truth, ctx)
     if not out:
         raise InputError(f"nothing to score: no {', '.join(t for _, t, _ in SECTIONS)} table",
@@ -140,7 +144,7 @@ def _load_truth(results, results_path, truth_path):
         if sequence is None:
             raise InputError("no --truth given and the results' input file was not found",
                              results_path)
-    found = find_truth(truth_path, sequence=sequence)
+    found = find_truth(truth_path, sequence=sequence, n_frames=results.attrs.get("n_frames"))
     return found.table, found.shape
 
 

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import h5py
 
+from irdetect.errors import InputError, check_input_file
 from irdetect.io import open_sequence, read_results
 
 RESULT_TABLES = ("detections", "candidates", "segments", "tracks", "track_points", "scans")
@@ -21,9 +22,15 @@ def add_arguments(p):
 def describe(path, dataset=None) -> list[str]:
     """Human lines describing ``path``; raises InputError when it cannot be read."""
     p = Path(path)
-    if p.is_file() and h5py.is_hdf5(p):
-        with h5py.File(p, "r") as f:
-            is_results = dataset is None and any(name in f for name in RESULT_TABLES)
+    if not p.is_dir():
+        check_input_file(p)
+    if h5py.is_hdf5(p):
+        try:
+            with h5py.File(p, "r") as f:
+                is_results = dataset is None and any(name in f for name in RESULT_TABLES)
+        except OSError as exc:
+            raise InputError(f"corrupt or truncated HDF5 file ({str(exc).splitlines()[0]})",
+                             path) from None
         if is_results:
             return _describe_results(path)
     with open_sequence(path, dataset) as src:

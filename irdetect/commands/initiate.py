@@ -63,7 +63,7 @@ def run(args) -> int:
     from irdetect.io import ResultsWriter, check_output_path
     from irdetect.io.scans import read_scans
 
-    check_output_path(args.output, args.force)
+    check_output_path(args.output, args.force, inputs=(args.input,))
     scans, truth, attrs = read_scans(args.input)
     params = _params(args, attrs)
     n_scans = len(set(scans["scan"].tolist()))
@@ -90,7 +90,8 @@ def run(args) -> int:
     for key in ("sigma", "sigma_range", "sigma_azimuth", "period", "scenario", "max_range"):
         if key in attrs:
             run_attrs[key] = attrs[key]
-    with ResultsWriter(args.output, force=args.force, attrs=run_attrs) as out:
+    with ResultsWriter(args.output, force=args.force, attrs=run_attrs,
+                       inputs=(args.input,)) as out:
         out.write("scan_tracks", tracks)
         out.write("scans", scans)
         if truth is not None:

@@ -56,7 +56,9 @@ def run(args) -> int:
     from irdetect.io import check_output_path, open_sequence, read_results
     from irdetect.plot import require_matplotlib, plot_results, write_figure
 
-    check_output_path(args.output, args.force)
+    if args.scale is not None and not 0.05 <= args.scale <= 16:
+        raise InputError(f"--scale must lie in [0.05, 16], got {args.scale}")
+    check_output_path(args.output, args.force, inputs=(args.results,))
     require_matplotlib()                             # the install hint before any work
     if not Path(args.results).exists():
         raise InputError("results file not found", args.results)
@@ -73,7 +75,7 @@ def run(args) -> int:
             fig = plot_results(results, src, suppressed=not args.raw,
                                  truth=resolve_truth(args.truth, src), scale=args.scale,
                                  gamma=args.gamma, progress=args.progress)
-    write_figure(args.output, fig, force=args.force)
+    write_figure(args.output, fig, force=args.force, inputs=(args.results, seq))
     width, height = fig.canvas.get_width_height()
     log.info("wrote %s (%dx%d px)", args.output, width, height)
     return 0

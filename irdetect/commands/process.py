@@ -16,7 +16,7 @@ import logging
 import os
 from pathlib import Path
 
-from irdetect.batch import SCHEDULER_ENV, is_image_folder, output_name
+from irdetect.batch import SCHEDULER_ENV, expand_inputs, is_image_folder, output_name
 from irdetect.profiles import load_profile, profile_names
 from irdetect.commands.video import add_style_arguments as add_video_arguments
 from irdetect.commands.video import render_after_process
@@ -104,6 +104,8 @@ def _is_batch(args) -> bool:
         pattern = not path.exists() and any(c in args.inputs[0] for c in "*?[")
         if not pattern and (not path.is_dir() or is_image_folder(path)):
             return False
+        if path.is_dir() and not expand_inputs([path]):
+            raise InputError("the folder holds no images and no sequence files", path)
     what = (f"{len(args.inputs)} inputs" if len(args.inputs) > 1
             else "a folder of sequences or a pattern")
     raise InputError(f"{what}: give --out-dir DIR for the results"

@@ -44,12 +44,12 @@ def run(args) -> int:
     config = load_config(args.config, overrides={"track": overrides})
     path = Path(args.input)
     output = Path(args.output or f"{path.name if path.is_dir() else path.stem}.track.h5")
-    check_output_path(output, args.force)
+    check_output_path(output, args.force, inputs=(args.input,))
     params = {k: getattr(config.track, k) for k in config.track.__dataclass_fields__}
     with refused_settings(args.config):     # the tracker's own checks, on blank frames
         track(np.zeros((3, 32, 32), np.float32), lambda rows: None, False, **params)
     with open_sequence(args.input, dataset=args.dataset) as source, \
-            ResultsWriter(output, force=args.force, attrs={
+            ResultsWriter(output, force=args.force, inputs=(args.input,), attrs={
                 "config": to_json(config), "input": path.name,
                 "input_path": str(path.resolve()), "n_frames": source.shape[0],
                 "frame_height": source.shape[1], "frame_width": source.shape[2],

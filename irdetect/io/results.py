@@ -2,7 +2,7 @@
 
 A writer fills a temporary file beside the output and renames it into place only when
 everything succeeded, so a run that fails or is killed leaves no file at the output path;
-an existing output is replaced only with ``force=True``. Tables are numpy structured
+an existing output is replaced only with ``force=True`` (``irdetect.io.atomic``). Tables are numpy structured
 arrays stored as compound datasets (``irdetect.tables``); empty tables keep their fields.
 """
 
@@ -10,8 +10,7 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
-from contextlib import contextmanager
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -19,32 +18,25 @@ import h5py
 import numpy as np
 
 from irdetect import __version__, tables
-from irdetect.errors import InputError
-
-
-def check_output_path(path: str | os.PathLike, force: bool = False) -> Path:
-    """Check that ``path`` can be written: its folder exists, and it is new or ``force``.
-
-    Raises
-    ------
-    InputError
-        The folder is missing or not writable, or the file exists and ``force`` is False.
-    """
-    path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    if not folder.is_dir():
-        raise InputError(f"output folder {str(folder)!r} does not exist", path)
-    if not os.access(folder, os.W_OK):
-        raise InputError(f"output folder {str(folder)!r} is not writable", path)
-    if path.exists() and not force:
-        raise InputError("output exists; use --force to overwrite it", path)
-    if path.is_dir():
-        raise InputError("output path is a folder", path)
-    return path
+from irdetect.errors import InputError, check_input_file
+from irdetect.io.atomic import GuardedFile, atomic_output, check_output_path
 
 
 class AtomicH5:
     """An HDF5 file that appears at ``path`` only when the ``with`` block succeeds.
+
+    Written through :func:`irdetect.io.atomic.atomic_output` (lock, hidden temporary,
+    rename) and :class:`~irdetect.io.atomic.GuardedFile` (a disk-full or other write error
+    becomes one ``InputError``, never a crash of the HDF5 library).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The output file.
+    force : bool
+        Replace an existing file.
+    inputs : iterable of path
+        The run's inputs: the output may be none of them.
 
     Examples
     --------
@@ -52,57 +44,38 @@ class AtomicH5:
     ...     f.create_dataset("x", data=[1, 2, 3])
     """
 
-    def __init__(self, path: str | os.PathLike, *, force: bool = False):
-        self.path = check_output_path(path, force)
-        self._tmp: str | None = None
+    def __init__(self, path: str | os.PathLike, *, force: bool = False, inputs=()):
+        self.path = check_output_path(path, force, inputs)
+        self._output = atomic_output(self.path, force=force, inputs=inputs)
+        self._guard: GuardedFile | None = None
         self.file: h5py.File | None = None
 
     def __enter__(self) -> h5py.File:
-        fd, self._tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp",
-                                         dir=self.path.parent)
-        os.close(fd)
-        self.file = h5py.File(self._tmp, "w")
+        tmp = self._output.__enter__()
+        try:
+            self._guard = GuardedFile(tmp, self.path)
+            self.file = h5py.File(self._guard, "w")
+        except BaseException:
+            self._output.__exit__(*sys.exc_info())
+            raise
         return self.file
+
+    def check(self) -> None:
+        """Raise the first write error (disk full, ...) as an ``InputError`` now."""
+        self._guard.check()
 
     def __exit__(self, exc_type, exc, tb):
         try:
             self.file.close()
+            self._guard.close()
             if exc_type is None:
-                os.chmod(self._tmp, 0o666 & ~_umask())  # mkstemp makes it private (0600)
-                os.replace(self._tmp, self.path)
-        finally:
-            if os.path.exists(self._tmp):
-                os.unlink(self._tmp)
-        return False
-
-
-@contextmanager
-def atomic_path(path: str | os.PathLike, *, force: bool = False):
-    """A temporary file name beside ``path`` that becomes ``path`` when the ``with`` block
-    succeeds (renamed into place, mode 0666 less the umask); on failure it is removed.
-
-    Examples
-    --------
-    >>> with atomic_path("table.csv") as tmp:          # doctest: +SKIP
-    ...     Path(tmp).write_text("x,y\n1,2\n")
-    """
-    path = check_output_path(path, force)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}",
-                               dir=path.parent)
-    os.close(fd)
-    try:
-        yield tmp
-        os.chmod(tmp, 0o666 & ~_umask())               # mkstemp makes it private (0600)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+                self._guard.check()
+        except BaseException:
+            if exc_type is None:
+                exc_type, exc, tb = sys.exc_info()
+            self._output.__exit__(exc_type, exc, tb)
+            raise
+        return self._output.__exit__(exc_type, exc, tb)
 
 
 class ResultsWriter(AtomicH5):
@@ -116,6 +89,8 @@ class ResultsWriter(AtomicH5):
         Replace an existing file.
     attrs : dict, optional
         Root attributes; ``irdetect_version`` is always added.
+    inputs : iterable of path
+        The run's inputs: the output may be none of them.
 
     Examples
     --------
@@ -127,8 +102,8 @@ class ResultsWriter(AtomicH5):
     #: HDF5 resize + write per block, not per call: per-call writes cost ~1 ms each)
     FLUSH_ROWS = 4096
 
-    def __init__(self, path, *, force: bool = False, attrs: dict | None = None):
-        super().__init__(path, force=force)
+    def __init__(self, path, *, force: bool = False, attrs: dict | None = None, inputs=()):
+        super().__init__(path, force=force, inputs=inputs)
         self.attrs = {"irdetect_version": __version__, **(attrs or {})}
         self._pending: dict[str, list] = {}
         self._n_pending: dict[str, int] = {}
@@ -139,9 +114,13 @@ class ResultsWriter(AtomicH5):
 
     def __exit__(self, exc_type, exc, tb):
         if exc_type is None:
-            self.flush()
-            for key, value in self.attrs.items():
-                self.file.attrs[key] = value
+            try:
+                self.flush()
+                for key, value in self.attrs.items():
+                    self.file.attrs[key] = value
+            except BaseException:
+                super().__exit__(*sys.exc_info())    # closes and removes the temporary
+                raise
         return super().__exit__(exc_type, exc, tb)
 
     def write(self, name: str, table: np.ndarray) -> None:
@@ -180,6 +159,7 @@ class ResultsWriter(AtomicH5):
         dset.resize((n + len(rows),))
         dset[n:] = rows
         self._pending[name], self._n_pending[name] = [], 0
+        self.check()
 
 
 @dataclass
@@ -209,7 +189,13 @@ class Results:
     @property
     def config(self) -> dict:
         """The resolved configuration the results were made with."""
-        return json.loads(self.attrs.get("config", "{}"))
+        try:
+            config = json.loads(self.attrs.get("config", "{}"))
+        except (TypeError, ValueError):
+            config = None
+        if not isinstance(config, dict):
+            raise InputError("attribute config is not a JSON object", self.path)
+        return config
 
 
 def read_results(path: str | os.PathLike, *, as_frame: bool | None = False) -> Results:
@@ -246,6 +232,7 @@ def read_results(path: str | os.PathLike, *, as_frame: bool | None = False) -> R
 
 
 def _read_results(path) -> Results:
+    check_input_file(path, "results file")
     try:
         with h5py.File(path, "r") as f:
             found = {}
@@ -253,12 +240,12 @@ def _read_results(path) -> Results:
                 if isinstance(obj, h5py.Dataset) and obj.dtype.names is not None:
                     found[name] = obj[()]
             attrs = {k: _plain(v) for k, v in f.attrs.items()}
-    except FileNotFoundError:
-        raise InputError("file not found", path) from None
     except OSError as exc:
         raise InputError(f"not a readable HDF5 file ({str(exc).splitlines()[0][:120]})",
                          path) from None
-    return Results(os.fspath(path), found, attrs)
+    results = Results(os.fspath(path), found, attrs)
+    results.config          # a config attribute that is not JSON fails here, not later
+    return results
 
 
 def _plain(value):
@@ -271,7 +258,7 @@ def _plain(value):
 
 def write_sequence(path: str | os.PathLike, frames, *, truth: np.ndarray | None = None,
                    attrs: dict | None = None, force: bool = False,
-                   chunk_frames: int = 64) -> Path:
+                   chunk_frames: int = 64, inputs=()) -> Path:
     """Write an image sequence to the HDF5 contract (``/frames``, optional ``/truth``).
 
     Parameters
@@ -284,8 +271,11 @@ def write_sequence(path: str | os.PathLike, frames, *, truth: np.ndarray | None 
         Root attributes (e.g. ``frame_rate``).
     chunk_frames : int
         HDF5 chunk length along time; frames are chunked whole so windows read fast.
+    inputs : iterable of path
+        The files the frames come from: the output may be none of them.
     """
-    with AtomicH5(path, force=force) as f:
+    out = AtomicH5(path, force=force, inputs=inputs)
+    with out as f:
         blocks = [frames] if isinstance(frames, np.ndarray) else frames
         dset = None
         for block in blocks:
@@ -298,6 +288,7 @@ def write_sequence(path: str | os.PathLike, frames, *, truth: np.ndarray | None 
             n = dset.shape[0]
             dset.resize((n + len(block),) + block.shape[1:])
             dset[n:] = block
+            out.check()
         if dset is None:
             raise InputError("no frames to write", path)
         if truth is not None:
@@ -325,6 +316,7 @@ def read_point_annotations(path: str | os.PathLike, n_frames: int | None = None)
         Unreadable file, a line without two numbers, or a line count other than ``n_frames``.
     """
     rows = []
+    check_input_file(path, "annotation file")
     try:
         with open(path, encoding="utf-8") as fh:
             for number, line in enumerate(fh, 1):

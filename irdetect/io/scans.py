@@ -14,7 +14,7 @@ import h5py
 import numpy as np
 
 from irdetect import __version__, tables
-from irdetect.errors import InputError
+from irdetect.errors import InputError, check_input_file
 from irdetect.io.results import AtomicH5
 
 log = logging.getLogger(__name__)
@@ -54,6 +54,7 @@ def read_scans(path: str | os.PathLike):
         Missing file or ``/scans``, missing fields, NaN or inf in scan/time/x/y, a scan
         whose time differs between rows, or times that go backwards as scans advance.
     """
+    check_input_file(path, "scans file")
     try:
         with h5py.File(path, "r") as f:
             if "scans" not in f or f["scans"].dtype.names is None:

@@ -19,7 +19,7 @@ import h5py
 import numpy as np
 
 from irdetect import tables
-from irdetect.errors import InputError
+from irdetect.errors import InputError, check_input_file
 
 IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg", ".pgm"}
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".mpg", ".mpeg", ".wmv", ".m4v"}
@@ -134,8 +134,7 @@ class HDF5Source(FrameSource):
             _check_stack(self.path, self._dset.shape, self._dset.dtype)
             self.shape = tuple(int(n) for n in self._dset.shape)
             self.dtype = np.dtype(self._dset.dtype)
-            rate = self._file.attrs.get("frame_rate")
-            self.frame_rate = None if rate is None else float(rate)
+            self.frame_rate = _frame_rate(self._file.attrs.get("frame_rate"), self.path)
             self.truth = _read_truth(self._file, self.path)
             self.block_frames = self._block_frames()
             self._dset[0, :1, :1]  # a truncated file fails here, not mid-run
@@ -197,6 +196,20 @@ class HDF5Source(FrameSource):
     def close(self):
         if self._file.id.valid:
             self._file.close()
+
+
+def _frame_rate(value, path) -> float | None:
+    """The ``frame_rate`` attribute as a positive number, or None when absent."""
+    if value is None:
+        return None
+    try:
+        rate = float(np.asarray(value).reshape(-1)[0]) if np.size(value) == 1 else None
+    except (TypeError, ValueError):
+        rate = None
+    if rate is None or not (np.isfinite(rate) and rate > 0):
+        raise InputError(f"attribute frame_rate must be one positive number, got {value!r}",
+                         path)
+    return rate
 
 
 def _read_truth(file: h5py.File, path) -> np.ndarray | None:
@@ -468,8 +481,7 @@ def open_sequence(path: str | os.PathLike, dataset: str | None = None) -> FrameS
     p = Path(path)
     if p.is_dir():
         return ImageFolderSource(p)
-    if not p.exists():
-        raise InputError("file not found", path)
+    check_input_file(p)
     suffix = p.suffix.lower()
     if suffix == ".npy":
         return NpySource(p)

@@ -12,14 +12,14 @@ only with ``force=True``.
 from __future__ import annotations
 
 import os
-import shutil
-import tempfile
+import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from irdetect.errors import InputError
+from irdetect.io.atomic import atomic_output, check_output_path, same_file
 
 #: suffix -> fourcc of the OpenCV video writer
 CODECS = {".mp4": "mp4v", ".avi": "MJPG"}
@@ -45,8 +45,11 @@ def output_kind(path: str | os.PathLike) -> str:
                      "name without a suffix for PNG frames)", path)
 
 
-def check_video_path(path: str | os.PathLike, force: bool = False) -> tuple[Path, str]:
+def check_video_path(path: str | os.PathLike, force: bool = False,
+                     inputs=()) -> tuple[Path, str]:
     """Check that a video / PNG-folder output can be written; returns (path, kind).
+
+    ``inputs`` are the run's input files and folders: the output may be none of them.
 
     Raises
     ------
@@ -62,6 +65,10 @@ def check_video_path(path: str | os.PathLike, force: bool = False) -> tuple[Path
         raise InputError(f"output folder {str(parent)!r} does not exist", path)
     if not os.access(parent, os.W_OK):
         raise InputError(f"output folder {str(parent)!r} is not writable", path)
+    for source in inputs:
+        if source is not None and same_file(source, p):
+            raise InputError(f"the output is the input {os.fspath(source)!r}; give another "
+                             "output name", path)
     if kind == "png":
         if p.exists() and not p.is_dir():
             raise InputError("a PNG-frame output must be a folder, but this is a file", path)
@@ -75,10 +82,7 @@ def check_video_path(path: str | os.PathLike, force: bool = False) -> tuple[Path
                 raise InputError(f"output folder holds files other than PNG frames "
                                  f"({others[0]!r}, ...); refusing to replace it", path)
     else:
-        if p.is_dir():
-            raise InputError("output path is a folder", path)
-        if p.exists() and not force:
-            raise InputError("output exists; use --force to overwrite it", path)
+        check_output_path(p, force)
     return p, kind
 
 
@@ -106,26 +110,21 @@ class VideoWriter:
     ...     out.write(np.zeros((240, 320, 3), np.uint8))
     """
 
-    def __init__(self, path: str | os.PathLike, *, fps: float = 25.0, force: bool = False):
+    def __init__(self, path: str | os.PathLike, *, fps: float = 25.0, force: bool = False,
+                 inputs=()):
         if not (np.isfinite(fps) and fps > 0):
             raise ValueError(f"fps must be a positive number, got {fps}")
-        self.path, self.kind = check_video_path(path, force)
+        self.path, self.kind = check_video_path(path, force, inputs)
         self.fps = float(fps)
-        self.force = force
         self.count = 0
+        self._output = atomic_output(self.path, force=force, inputs=inputs,
+                                     suffix=f".{self.kind}", folder=self.kind == "png")
         self._tmp: str | None = None
         self._writer = None
         self._size: tuple[int, int] | None = None     # (H, W) of the first frame
 
     def __enter__(self) -> "VideoWriter":
-        if self.kind == "png":
-            self._tmp = tempfile.mkdtemp(prefix=f".{self.path.name}.", suffix=".tmp",
-                                         dir=self.path.parent)
-        else:
-            fd, self._tmp = tempfile.mkstemp(prefix=f".{self.path.stem}.",
-                                             suffix=f".tmp{self.path.suffix.lower()}",
-                                             dir=self.path.parent)
-            os.close(fd)
+        self._tmp = self._output.__enter__()
         return self
 
     def write(self, frame: np.ndarray, index: int | None = None) -> None:
@@ -176,37 +175,17 @@ class VideoWriter:
         self._writer = writer
 
     def __exit__(self, exc_type, exc, tb):
-        if self._writer is not None:
-            self._writer.release()
         try:
+            if self._writer is not None:
+                self._writer.release()
             if exc_type is None:
                 if self.count == 0:
                     raise InputError("no frames to write", self.path)
-                self._commit()
-        finally:
-            if self._tmp is not None and os.path.exists(self._tmp):
-                if os.path.isdir(self._tmp):
-                    shutil.rmtree(self._tmp)
-                else:
-                    os.unlink(self._tmp)
-        return False
-
-    def _commit(self) -> None:
-        # mkstemp / mkdtemp create private files; give the output the usual permissions
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(self._tmp, (0o777 if self.kind == "png" else 0o666) & ~umask)
-        if self.kind == "png":
-            if self.path.is_dir():
-                # check_video_path made sure it holds PNG frames only; move it aside
-                # first so the new folder appears in one rename
-                old = tempfile.mkdtemp(prefix=f".{self.path.name}.", suffix=".old",
-                                       dir=self.path.parent)
-                os.rmdir(old)
-                os.rename(self.path, old)
-                os.rename(self._tmp, self.path)
-                shutil.rmtree(old)
-            else:
-                os.rename(self._tmp, self.path)
-        else:
-            os.replace(self._tmp, self.path)
+                if self.kind != "png" and os.path.getsize(self._tmp) == 0:
+                    raise InputError("the video encoder wrote nothing (disk full?)", self.path)
+        except BaseException:
+            if exc_type is None:
+                exc_type, exc, tb = sys.exc_info()
+            self._output.__exit__(exc_type, exc, tb)
+            raise
+        return self._output.__exit__(exc_type, exc, tb)

@@ -27,7 +27,7 @@ import numpy as np
 from irdetect import tables
 from irdetect.config import from_dict
 from irdetect.errors import InputError
-from irdetect.simulate.presets import read_preset
+from irdetect.simulate.presets import MAX_PIXELS, read_preset
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,8 @@ def load_harbour(name: str | os.PathLike = "harbour", **overrides) -> HarbourSce
     ship_list = tuple(from_dict(Ship, sh, where=f"harbour.ships[{i}]", path=path)
                       for i, sh in enumerate(ships))
     s = dataclasses.replace(s, ships=overrides.get("ships", ship_list))
-    _validate(s, path)
+    # a bad value of an override comes from the options, not the preset
+    _validate(s, None if any(v is not None for v in overrides.values()) else path)
     return s
 
 
@@ -98,6 +99,9 @@ def _validate(s: HarbourScenario, path=None) -> None:
     for name in ("height", "width", "n_frames"):
         if getattr(s, name) < 1:
             raise InputError(f"{name} must be >= 1, got {getattr(s, name)}", path)
+    if s.width * s.height > MAX_PIXELS:
+        raise InputError(f"frames of {s.width}x{s.height} px: at most {MAX_PIXELS:,} px a "
+                         "frame (8192x8192)", path)
     if s.noise_sigma < 0 or s.sea_clutter < 0 or s.glint_rate < 0:
         raise InputError("noise_sigma, sea_clutter and glint_rate must be >= 0", path)
     for i, sh in enumerate(s.ships):

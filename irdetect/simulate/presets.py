@@ -17,6 +17,10 @@ from irdetect.errors import InputError
 PRESETS = data_dir("presets")
 
 
+#: the largest frame the simulator writes (a frame is built whole in memory)
+MAX_PIXELS = 8192 * 8192
+
+
 def preset_path(name: str | os.PathLike) -> Path:
     """``data/presets/<name>.toml``, or ``name`` itself when it is a ``.toml`` path."""
     path = Path(name)

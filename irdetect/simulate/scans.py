@@ -66,10 +66,16 @@ def load_scan_scenario(name: str | os.PathLike = "zhang2010", **overrides):
     """
     data, path = read_preset(name, "scans")
     initiate = data.pop("initiate", {})
-    data.update({k: v for k, v in overrides.items() if v is not None})
-    s = from_dict(ScanScenario, data, where="scenario", path=path)
-    _validate(s, path)
+    _validate(from_dict(ScanScenario, data, where="scenario", path=path), path)
+    given = {k: v for k, v in overrides.items() if v is not None}
+    s = from_dict(ScanScenario, {**data, **given}, where="scenario", path=path)
+    if given:
+        _validate(s, None)      # a bad value comes from the options, not the preset
     return s, initiate
+
+
+#: the most clutter points a simulation draws (they are held in memory)
+MAX_CLUTTER = 10_000_000
 
 
 def _validate(s: ScanScenario, path=None):
@@ -77,8 +83,8 @@ def _validate(s: ScanScenario, path=None):
         raise InputError(f"n_scans must be >= 1, got {s.n_scans}", path)
     if not s.period > 0:
         raise InputError(f"period must be > 0, got {s.period}", path)
-    if s.clutter_density < 0 or s.clutter_mean < 0:
-        raise InputError("clutter_density and clutter_mean must be >= 0", path)
+    if not (s.clutter_density >= 0 and s.clutter_mean >= 0):     # NaN fails too
+        raise InputError("clutter_density and clutter_mean must be numbers >= 0", path)
     if not 0 <= s.detection_probability <= 1:
         raise InputError(f"detection_probability must lie in [0, 1], got "
                          f"{s.detection_probability}", path)
@@ -86,6 +92,12 @@ def _validate(s: ScanScenario, path=None):
         raise InputError("a polar scenario needs max_range > 0", path)
     if len(s.region) != 4 or not (s.region[1] > s.region[0] and s.region[3] > s.region[2]):
         raise InputError(f"region must be [x_min, x_max, y_min, y_max], got {s.region}", path)
+    x0, x1, y0, y1 = s.region
+    mean = (s.clutter_mean if s.clutter_mean > 0 or s.polar
+            else s.clutter_density * (x1 - x0) * (y1 - y0) / 1e6)
+    if mean * s.n_scans > MAX_CLUTTER:
+        raise InputError(f"{mean * s.n_scans:.3g} clutter points expected over the scans, at "
+                         f"most {MAX_CLUTTER:,} (lower the clutter density or mean)", path)
     for row in s.targets:
         if len(row) != 4:
             raise InputError(f"every target is [x, vx, y, vy], got {row}", path)

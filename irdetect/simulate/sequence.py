@@ -28,7 +28,7 @@ import numpy as np
 from irdetect import tables
 from irdetect.config import from_dict
 from irdetect.errors import InputError
-from irdetect.simulate.presets import read_preset
+from irdetect.simulate.presets import MAX_PIXELS, read_preset
 
 _DTYPES = {"uint8": (np.uint8, 255.0), "uint16": (np.uint16, 65535.0), "float32": (np.float32, None)}
 
@@ -71,6 +71,7 @@ class SequenceScenario:
     camera_jitter: float = 0.0
 
 
+
 def load_scenario(name: str | os.PathLike = "wan2008", **overrides) -> SequenceScenario:
     """Read a preset from ``data/presets/<name>.toml`` (or a TOML path) with overrides.
 
@@ -80,9 +81,11 @@ def load_scenario(name: str | os.PathLike = "wan2008", **overrides) -> SequenceS
         Unknown preset, unreadable TOML, unknown key or value of the wrong type.
     """
     data, path = read_preset(name, "sequence")
-    data.update({k: v for k, v in overrides.items() if v is not None})
-    scenario = from_dict(SequenceScenario, data, where="scenario", path=path)
-    _validate(scenario, path)
+    _validate(from_dict(SequenceScenario, data, where="scenario", path=path), path)
+    given = {k: v for k, v in overrides.items() if v is not None}
+    scenario = from_dict(SequenceScenario, {**data, **given}, where="scenario", path=path)
+    if given:
+        _validate(scenario, None)   # a bad value comes from the options, not the preset
     return scenario
 
 
@@ -92,6 +95,13 @@ def _validate(s: SequenceScenario, path=None) -> None:
     for name in ("height", "width", "n_frames"):
         if getattr(s, name) < 1:
             raise InputError(f"{name} must be >= 1, got {getattr(s, name)}", path)
+    if s.width * s.height > MAX_PIXELS:
+        raise InputError(f"frames of {s.width}x{s.height} px: at most {MAX_PIXELS:,} px a "
+                         "frame (8192x8192)", path)
+    values = (s.noise_sigma, s.psf_sigma, s.snr, *s.speed, *s.directions)
+    if not all(math.isfinite(v) for v in values):
+        raise InputError("noise_sigma, psf_sigma, snr, speed and directions must be finite "
+                         "numbers", path)
     if s.noise_sigma < 0 or s.psf_sigma <= 0 or s.snr < 0 or s.n_targets < 0:
         raise InputError("noise_sigma, snr, n_targets must be >= 0 and psf_sigma > 0", path)
     if len(s.speed) != 2 or not 0 <= s.speed[0] <= s.speed[1]:
