@@ -15,7 +15,7 @@ import pytest
 import irdetect
 from irdetect.cli import main
 from irdetect.export import MOT_BOX, mot_rows, track_positions
-from irdetect.io import read_results, write_sequence
+from irdetect.io import ResultsWriter, read_results, write_sequence
 from irdetect.simulate import simulate
 
 
@@ -105,6 +105,10 @@ def test_csv_and_json_hold_every_table(processed, cli, tmp_path):
     assert not [n for n in os.listdir(tmp_path / "out") if n.startswith(".")]
     code, _, err = cli("export", "missing.h5", "--format", "csv", "-o", "out2")
     assert code == 2 and "missing.h5" in err and not (tmp_path / "out2").exists()
+    with ResultsWriter(tmp_path / "scans_res.h5") as out:           # irdetect initiate's
+        out.write("scan_tracks", np.zeros(0, [("track_id", "<i8"), ("x", "<f8")]))
+    code, _, err = cli("export", "scans_res.h5", "--format", "mot", "-o", "out3")
+    assert code == 2 and "--format json" in err and not (tmp_path / "out3").exists()
 
 
 def test_read_results_gives_dataframes_when_pandas_is_there(processed, monkeypatch):
