@@ -35,11 +35,12 @@ WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EACCES, errno.EPE
 COMMANDS = [
     ("process", "process", "detect dim point targets in a sequence and initiate their tracks"),
     ("simulate", "simulate", "write a synthetic IR sequence with ground truth"),
-    ("convert", "convert", "convert any readable sequence (HDF5, image folder, video, .npy) to HDF5"),
+    ("convert", "convert", "convert a sequence (HDF5, image folder, TIFF stack, video, .npy) to HDF5"),
     ("info", "info", "say what a sequence, scans or results file holds"),
     ("evaluate", "evaluate", "score a results file against ground truth"),
     ("video", "video", "write an annotated video (.mp4, .avi or PNG frames) of a sequence and its results"),
     ("plot", "plot", "draw the tracks over the max projection and the Hough accumulator"),
+    ("export", "export", "write results as CSV, MOTChallenge text or JSON for other tools"),
     ("track", "track", "track small targets frame by frame (FCM + adaptive PMHT)"),
     ("initiate", "initiate", "initiate tracks on radar-style scans (Hough + SC, fuzzy parallel Hough, M/N)"),
     ("simulate-scans", "simulate_scans", "write simulated radar-style scans (zhang2010, liang2015)"),

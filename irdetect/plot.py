@@ -1,18 +1,24 @@
-"""One picture of a results file: tracks over the max projection, and the Hough accumulator.
+"""One figure of a results file: tracks over the max projection, and the Hough accumulator.
 
 Left panel: the per-pixel maximum over the whole sequence (raw frames, or the suppressed
 frames, where a moving dim point leaves a visible streak), with the confirmed detections
-(circles coloured by window), the initiated tracks (estimated path from ``frame_start``
-to ``frame_end`` as an arrow with its id), frame-by-frame tracker paths and the truth.
+(open circles coloured by window), the initiated tracks (estimated path from
+``frame_start`` to ``frame_end`` as an orange arrow with its id), frame-by-frame tracker
+paths (yellow) and the truth (green open diamonds drawn over everything else), and a
+legend.
 
 Right panel: the Hough accumulator of the confirmed detections, recomputed as the
 initiator (``irdetect.initiate``, method ``hough-sc``) builds it -- ``hough_grid`` with the
 results' ``rho_step`` and ``n_theta``, ``hough_transform`` of all detections, the
 candidate cells with at least T = ceil(vote_fraction x number of combined frames) votes
 (white dots), and the centres ``subtractive_cluster`` picks among them (cyan circles);
-the (rho, theta) of the tracks in the file are green crosses. Cells crowding around each
-line is the "peak clustering" of Zhang, Su & Ma (2010); one centre per crowd is its fix.
-Drawing is OpenCV only (no matplotlib).
+the (rho, theta) of the tracks in the file are orange crosses. Axes in rho (px) and theta
+(degrees), a colour bar of the votes. Cells crowding around each line is the "peak
+clustering" of Zhang, Su & Ma (2010); one centre per crowd is its fix.
+
+Drawn with matplotlib (the ``plot`` extra: ``pip install irdetect[plot]``) on the Agg
+canvas, no display needed; the colours are those of the video overlay
+(``irdetect.render.COLOURS``, docs/video.md).
 """
 
 from __future__ import annotations
@@ -21,14 +27,13 @@ import logging
 import math
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from irdetect.cluster import subtractive_cluster
 from irdetect.errors import InputError
 from irdetect.hough import hough_grid, hough_transform
-from irdetect.render import (COLOURS, Overlay, _FONT, _to_px, check_results_match,
-                             display_limits, put_text, scale_image, stretch, window_colour)
+from irdetect.render import (COLOURS, WINDOW_PALETTE, Overlay, check_results_match,
+                             display_limits, stretch)
 
 log = logging.getLogger(__name__)
 
@@ -36,8 +41,27 @@ log = logging.getLogger(__name__)
 HOUGH_DEFAULTS = dict(n_theta=90, rho_step=2.0, vote_fraction=0.6, radius_rho=3.0,
                       radius_theta=4.0, squash=1.25, accept_ratio=0.5, reject_ratio=0.15,
                       tile=0.0)
-CENTRE_COLOUR = (255, 255, 0)       # cyan
-CELL_COLOUR = (255, 255, 255)
+
+
+
+def rgb(bgr) -> tuple[float, float, float]:
+    """A BGR 0-255 colour of ``irdetect.render`` as matplotlib's RGB 0-1."""
+    b, g, r = bgr
+    return (r / 255, g / 255, b / 255)
+
+
+#: the figure's colours (matplotlib RGB), the video's (``irdetect.render.COLOURS``)
+PLOT_COLOURS = {
+    "track": rgb(COLOURS["track"]),              # orange
+    "tracker": rgb(COLOURS["tracker"]),          # yellow
+    "truth": rgb(COLOURS["truth"]),              # green
+    "windows": [rgb(c) for c in WINDOW_PALETTE],  # cyan, magenta, blue, pink by window
+    "cell": (1.0, 1.0, 1.0),                     # white
+    "centre": (0.0, 1.0, 1.0),                   # cyan
+}
+#: output suffix -> matplotlib's format
+IMAGE_FORMATS = {".png": "png", ".jpg": "jpeg", ".jpeg": "jpeg", ".tif": "tiff",
+                 ".tiff": "tiff", ".pdf": "pdf", ".svg": "svg"}
 
 
 def max_projection(source, *, suppressed: bool = False, config: dict | None = None,
@@ -135,19 +159,30 @@ def accumulator(detections, params: dict | None = None) -> dict:
             "n_scans": n_scans, "tile": p["tile"]}
 
 
-def _put(image, text, org, scale, colour=(255, 255, 255)):
-    put_text(image, text, org, scale, colour)
+def require_matplotlib():
+    """matplotlib's Figure and Agg canvas, or an InputError with the install hint."""
+    try:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+    except ImportError:
+        raise InputError("drawing the figure needs matplotlib: pip install irdetect[plot]") \
+            from None
+    logging.getLogger("matplotlib").setLevel(logging.WARNING)   # no font-cache chatter
+    return Figure, FigureCanvasAgg
 
 
-def tracks_panel(background: np.ndarray | None, shape, overlay: Overlay, *, scale: float,
-                 title: str, gamma: float = 1.0) -> np.ndarray:
-    """The left panel: tracks, detections, tracker paths and truth over ``background``.
+def draw_tracks(ax, background, shape, overlay: Overlay, *, gamma: float = 1.0) -> None:
+    """The left panel on matplotlib axes ``ax``: detections, tracks, tracker paths and
+    truth over ``background``, with a legend.
 
     Parameters
     ----------
+    ax : matplotlib.axes.Axes
     background : ndarray of shape (H, W) or None
         The max projection (stretched for display here); None gives a dark background.
     shape : (H, W)
+    overlay : irdetect.render.Overlay
+        The tables; points are (x, y) = (column, row) px, pixel centres at integers.
     """
     h, w = shape
     if background is None:
@@ -155,123 +190,132 @@ def tracks_panel(background: np.ndarray | None, shape, overlay: Overlay, *, scal
     else:
         lo, hi = display_limits(background, low=1.0, high=99.9)
         grey = stretch(background, limits=(lo, hi), gamma=gamma)
-    img = scale_image(grey, scale)
-    r = max(4, int(round(2.5 * scale)))
-    _paths(img, overlay.truth, "target", COLOURS["truth"], scale)
+    ax.imshow(grey, cmap="gray", vmin=0, vmax=255, interpolation="nearest",
+              extent=(-0.5, w - 0.5, h - 0.5, -0.5))
     det = overlay.detections
-    px, py = _to_px(det["x"], det["y"], scale)
-    for x, y, k in zip(px, py, det["combined_frame"]):
-        cv2.circle(img, (int(round(x)), int(round(y))), r, window_colour(k), 1, cv2.LINE_AA)
-    _paths(img, overlay.track_points, "track_id", COLOURS["tracker"], scale)
-    fs = 0.45 if scale >= 2 else 0.4
+    windows = PLOT_COLOURS["windows"]
+    colours = [windows[int(k) % len(windows)] for k in det["combined_frame"]]
+    ax.scatter(det["x"], det["y"], s=40, facecolors="none", edgecolors=colours,
+               linewidths=1.0, zorder=3, label="detection (colour: window)")
+    tp = overlay.track_points
+    for i, tid in enumerate(np.unique(tp["track_id"])):
+        rows = tp[tp["track_id"] == tid]
+        ax.plot(rows["x"], rows["y"], color=PLOT_COLOURS["tracker"], lw=1.0, zorder=4,
+                label="tracker path" if i == 0 else None)
+    drawn = 0
     for row in overlay.tracks:
         if not (np.isfinite(row["x0"]) and np.isfinite(row["vx"])):
             continue
-        px_, py_ = overlay.track_at(row, [row["frame_start"], row["frame_end"]])
-        (ax, ay) = _to_px(px_[0], py_[0], scale)
-        (bx, by) = _to_px(px_[1], py_[1], scale)
-        length = max(1.0, math.hypot(bx - ax, by - ay))
-        cv2.arrowedLine(img, (int(round(ax)), int(round(ay))), (int(round(bx)), int(round(by))),
-                        COLOURS["track"], max(1, int(scale // 2)), cv2.LINE_AA,
-                        tipLength=min(0.3, 10.0 / length))
-        _put(img, f"T{int(row['track_id'])}", (int(bx) + 4, int(by) - 4), fs, COLOURS["track"])
-    _put(img, title, (6, 18), fs)
-    return img
+        frames = np.arange(int(row["frame_start"]), int(row["frame_end"]) + 1)
+        xs, ys = overlay.track_at(row, frames)
+        ax.plot(xs, ys, color=PLOT_COLOURS["track"], lw=1.6, zorder=5,
+                label="initiated track" if drawn == 0 else None)
+        if len(xs) > 1:
+            ax.annotate("", xy=(xs[-1], ys[-1]), xytext=(xs[-2], ys[-2]), zorder=5,
+                        arrowprops=dict(arrowstyle="-|>", color=PLOT_COLOURS["track"],
+                                        lw=1.6, mutation_scale=12))
+        ax.annotate(f"T{int(row['track_id'])}", (xs[-1], ys[-1]), xytext=(4, 4),
+                    textcoords="offset points", color=PLOT_COLOURS["track"], fontsize=8,
+                    zorder=6)
+        drawn += 1
+    truth = overlay.truth
+    for i, tid in enumerate(np.unique(truth["target"])):
+        rows = truth[truth["target"] == tid]
+        step = max(1, len(rows) // 24)            # about two dozen markers per target
+        ax.plot(rows["x"][::step], rows["y"][::step], ls="none", marker="D", ms=4,
+                mfc="none", mec=PLOT_COLOURS["truth"], mew=1.2, zorder=7,
+                label="truth" if i == 0 else None)
+    ax.set_xlim(-0.5, w - 0.5)
+    ax.set_ylim(h - 0.5, -0.5)
+    ax.set_xlabel("x (px, column)")
+    ax.set_ylabel("y (px, row)")
+    handles, labels = ax.get_legend_handles_labels()
+    if handles:
+        ax.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2,
+                  fontsize=8, frameon=False)
 
 
-def hough_panel(hough: dict, tracks: np.ndarray, height: int) -> np.ndarray:
-    """The right panel: the accumulator as a colour map (square root of the votes), rho
-    down, theta across; the rho axis is cropped to the rows that hold votes."""
+def draw_hough(ax, hough: dict, tracks: np.ndarray):
+    """The right panel on ``ax``: the accumulator (colour = votes, square-root scale) over
+    theta (degrees) across and rho (px) down, cropped to the rows that hold votes; the
+    candidate cells, the cluster centres and the tracks' (rho, theta). Returns the image
+    (for a colour bar)."""
+    from matplotlib.colors import PowerNorm
+
     acc, grid = hough["acc"], hough["grid"]
-    n_rho, n_theta = acc.shape
+    n_rho = acc.shape[0]
     rows = np.flatnonzero(acc.any(axis=1))
     if rows.size:
         pad = max(2, int(0.05 * (rows[-1] - rows[0] + 1)))
         j0, j1 = max(0, rows[0] - pad), min(n_rho, rows[-1] + pad + 1)
     else:
         j0, j1 = 0, n_rho
-    acc = acc[j0:j1]
-    margin_l, margin_b, margin_t = 44, 34, 44
-    ph = height - margin_b - margin_t
-    pw = int(round(ph * 1.1))
-    img = np.full((height, pw + margin_l + 10, 3), 24, np.uint8)
-    peak = acc.max() if acc.size else 0.0
-    norm = np.zeros(acc.shape, np.uint8) if peak <= 0 else \
-        np.rint(255 * np.sqrt(acc / peak)).astype(np.uint8)
-    cmap = cv2.applyColorMap(norm, cv2.COLORMAP_INFERNO)
-    img[margin_t:margin_t + ph, margin_l:margin_l + pw] = cv2.resize(
-        cmap, (pw, ph), interpolation=cv2.INTER_NEAREST)
-    sy, sx = ph / (j1 - j0), pw / n_theta
-
-    def cell_px(j, n):          # fractional cell indices (full grid) -> panel pixel
-        return (int(round(margin_l + (n + 0.5) * sx)),
-                int(round(margin_t + (j - j0 + 0.5) * sy)))
-
-    for j, n in hough["cells"]:
-        cv2.circle(img, cell_px(j, n), 1, CELL_COLOUR, -1)
-    for rho, theta in hough["centres"]:
-        j = (rho - grid.rho_min) / grid.drho - 0.5
-        n = theta / grid.dtheta - 0.5
-        cv2.circle(img, cell_px(j, n), 9, CENTRE_COLOUR, 1, cv2.LINE_AA)
-    for row in tracks:
-        if not (np.isfinite(row["rho"]) and np.isfinite(row["theta"])):
-            continue
-        j = (row["rho"] - grid.rho_min) / grid.drho - 0.5
-        n = row["theta"] / grid.dtheta - 0.5
-        cv2.drawMarker(img, cell_px(j, n), COLOURS["truth"], cv2.MARKER_TILTED_CROSS, 16, 2,
-                       cv2.LINE_AA)
-    fs = 0.4
-    rho_lo = grid.rho_min + j0 * grid.drho
-    rho_hi = grid.rho_min + j1 * grid.drho
-    for frac in (0.0, 0.5, 1.0):
-        x = int(round(margin_l + frac * (pw - 1)))
-        cv2.line(img, (x, margin_t + ph), (x, margin_t + ph + 4), (200, 200, 200), 1)
-        _put(img, f"{180 * frac:.0f}", (x - 8, margin_t + ph + 16), fs)
-        y = int(round(margin_t + frac * (ph - 1)))
-        cv2.line(img, (margin_l - 4, y), (margin_l, y), (200, 200, 200), 1)
-        _put(img, f"{rho_lo + frac * (rho_hi - rho_lo):.0f}", (2, y + 4), fs)
-    _put(img, "theta (deg)", (margin_l + pw // 2 - 40, height - 4), fs)
-    _put(img, "rho", (4, margin_t - 8), fs)
-    _put(img, f"Hough accumulator of the detections ({hough['n_scans']} combined frames)",
-         (margin_l, 16), fs)
-    _put(img, f"{len(hough['cells'])} cells >= {hough['threshold']:g} votes", (margin_l, 34),
-         fs, CELL_COLOUR)
-    x = margin_l + cv2.getTextSize(f"{len(hough['cells'])} cells >= "
-                                   f"{hough['threshold']:g} votes", _FONT, fs, 1)[0][0] + 12
-    _put(img, f"{len(hough['centres'])} cluster centres", (x, 34), fs, CENTRE_COLOUR)
-    x += cv2.getTextSize(f"{len(hough['centres'])} cluster centres", _FONT, fs, 1)[0][0] + 12
-    _put(img, f"{len(tracks)} tracks", (x, 34), fs, COLOURS["truth"])
+    rho_lo, rho_hi = grid.rho_min + j0 * grid.drho, grid.rho_min + j1 * grid.drho
+    peak = float(acc.max()) if acc.size else 0.0
+    image = ax.imshow(acc[j0:j1], cmap="inferno", aspect="auto", interpolation="nearest",
+                      norm=PowerNorm(0.5, vmin=0, vmax=max(peak, 1.0)),
+                      extent=(0.0, 180.0, rho_hi, rho_lo))
+    cells = hough["cells"]
+    ax.scatter(np.degrees(grid.theta_centres[cells[:, 1]]) if len(cells) else [],
+               grid.rho_centres[cells[:, 0]] if len(cells) else [], s=4,
+               color=PLOT_COLOURS["cell"], zorder=3,
+               label=f"{len(cells)} cells >= {hough['threshold']:g} votes")
+    centres = hough["centres"]
+    ax.scatter(np.degrees(centres[:, 1]), centres[:, 0], s=120, facecolors="none",
+               edgecolors=PLOT_COLOURS["centre"], linewidths=1.4, zorder=4,
+               label=f"{len(centres)} cluster centres")
+    ok = np.isfinite(tracks["rho"]) & np.isfinite(tracks["theta"])
+    ax.scatter(np.degrees(tracks["theta"][ok]), tracks["rho"][ok], marker="x", s=60,
+               color=PLOT_COLOURS["track"], linewidths=2.0, zorder=5,
+               label=f"{int(ok.sum())} tracks (rho, theta)")
+    ax.set_xlim(0.0, 180.0)
+    ax.set_ylim(rho_hi, rho_lo)
+    ax.set_xlabel("theta (degrees)")
+    ax.set_ylabel("rho (px)")
+    title = f"Hough accumulator of the detections ({hough['n_scans']} combined frames)"
     if hough.get("tile"):
-        _put(img, f"(whole plane; the initiator used {hough['tile']:g} px tiles)",
-             (margin_l, height - 20), fs)
-    return img
+        title += f"\n(whole plane; the initiator used {hough['tile']:g} px tiles)"
+    ax.set_title(title, fontsize=9)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, fontsize=8,
+              frameon=False)
+    return image
 
 
 def plot_results(results, source=None, *, suppressed: bool = True, truth=None,
-                 scale: float | None = None, gamma: float = 1.0,
-                 progress: bool = False) -> np.ndarray:
-    """Draw the figure of a results file: tracks over the max projection | Hough accumulator.
+                 scale: float | None = None, gamma: float = 1.0, progress: bool = False):
+    """The figure of a results file: tracks over the max projection | Hough accumulator.
 
     Parameters
     ----------
     results : irdetect.io.Results
+        Read with ``irdetect.io.read_results`` (structured arrays).
     source : irdetect.io.FrameSource, optional
         The sequence, for the max projection (checked against the results); without it
         the tracks are drawn over a dark background of the size in the results' attributes.
     suppressed : bool
         Project the suppressed frames (streaks of moving points) rather than the raw ones.
     truth : structured ndarray, optional
-        ``irdetect.tables.TRUTH`` rows, drawn as green paths.
+        ``irdetect.tables.TRUTH`` rows (x = column, y = row, px), drawn as green diamonds.
     scale : float, optional
-        Output pixels per source pixel (default: enough for 480 px width, at most 4).
+        Figure pixels per source pixel of the left panel (default: enough for 480 px
+        width, at most 4).
 
     Returns
     -------
-    ndarray of shape (h, w, 3) uint8 (BGR)
+    matplotlib.figure.Figure
+        On an Agg canvas; ``fig.axes[0]`` is the tracks panel (data coordinates x, y px),
+        ``fig.axes[1]`` the accumulator (theta in degrees, rho in px). Write it with
+        ``write_figure``.
+
+    Raises
+    ------
+    InputError
+        No /detections, results of another sequence, or matplotlib missing.
     """
+    Figure, Canvas = require_matplotlib()
     found = results.tables
     if "detections" not in found:
-        raise InputError("holds no /detections: not the results of `irdetect process`",
+        raise InputError("holds no /detections: not the results of irdetect process",
                          results.path)
     if source is not None:
         check_results_match(results, source.shape, sequence_name=Path(source.path).name)
@@ -290,41 +334,36 @@ def plot_results(results, source=None, *, suppressed: bool = True, truth=None,
         background = max_projection(source, suppressed=suppressed, config=results.config,
                                     progress=progress)
         what = "max of suppressed frames" if suppressed else "max of raw frames"
-    left = tracks_panel(background, (h, w), overlay, scale=scale, gamma=gamma,
-                        title=f"{what}; {len(overlay.detections)} detections, "
-                        f"{len(overlay.tracks)} tracks")
+    dpi = 100.0
+    panel_w, panel_h = max(3.0, scale * w / dpi), max(2.5, scale * h / dpi)
+    fig = Figure(figsize=(2 * panel_w + 2.6, panel_h + 1.9), dpi=dpi, layout="constrained")
+    Canvas(fig)
+    left, right = fig.subplots(1, 2, width_ratios=[panel_w, panel_w + 0.6])
+    draw_tracks(left, background, (h, w), overlay, gamma=gamma)
+    left.set_title(f"{what}; {len(overlay.detections)} detections, "
+                   f"{len(overlay.tracks)} tracks", fontsize=9)
     hough = accumulator(found["detections"], results.config.get("initiate"))
-    right = hough_panel(hough, overlay.tracks, left.shape[0])
-    gap = np.full((left.shape[0], 6, 3), 64, np.uint8)
-    return np.hstack([left, gap, right])
+    image = draw_hough(right, hough, overlay.tracks)
+    fig.colorbar(image, ax=right, label="votes (detections on the cell's line)")
+    return fig
 
 
-def write_image(path, image: np.ndarray, *, force: bool = False, inputs=()) -> Path:
-    """Write an image atomically (``irdetect.io.atomic_output``: a temporary beside it,
-    then a rename).
+def write_figure(path, fig, *, force: bool = False, inputs=()) -> Path:
+    """Write a matplotlib figure atomically (``irdetect.io.atomic_output``: a temporary
+    beside it, then a rename; mode 0666 less the umask); never over one of ``inputs``.
 
     Raises
     ------
     InputError
-        Bad path (see ``irdetect.io.check_output_path``) or a type OpenCV cannot write.
+        Bad path (see ``irdetect.io.check_output_path``) or an unknown image type.
     """
     from irdetect.io import atomic_output, check_output_path
 
     path = check_output_path(path, force, inputs)
     suffix = path.suffix.lower()
-    if suffix not in (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"):
-        raise InputError(f"unknown image type {path.suffix!r} (use .png, .jpg, .bmp or .tif)",
-                         path)
+    if suffix not in IMAGE_FORMATS:
+        raise InputError(f"unknown image type {path.suffix!r} (use .png, .jpg, .tif, .pdf "
+                         "or .svg)", path)
     with atomic_output(path, force=force, inputs=inputs, suffix=suffix) as tmp:
-        if not cv2.imwrite(tmp, image):
-            raise InputError("OpenCV could not write the image (disk full?)", path)
+        fig.savefig(tmp, format=IMAGE_FORMATS[suffix])
     return path
-
-
-def _paths(img, table, key, colour, scale) -> None:
-    """Draw one polyline per value of ``table[key]`` through its (x, y) rows."""
-    for value in np.unique(table[key]):
-        rows = table[table[key] == value]
-        px, py = _to_px(rows["x"], rows["y"], scale)
-        cv2.polylines(img, [np.round(np.column_stack([px, py])).astype(np.int32)], False,
-                      colour, 1, cv2.LINE_AA)

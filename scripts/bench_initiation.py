@@ -4,7 +4,11 @@ wan2008 IR scene through the full pipeline. Prints the tables and writes
 docs/results/initiation.md.
 
 Usage: .venv/bin/python scripts/bench_initiation.py [--runs-zhang 50] [--runs-liang 100]
-       [--no-ir] [--jobs 2 | --scheduler ADDRESS]
+       [--runs-sweep 20] [--no-ir] [--only zhang|liang|ir|sweep] [--jobs 2 | --scheduler ADDRESS]
+The clutter sweep (zhang2010, M = 10, Pt / Pc against the clutter density beside the
+paper's Table 1 point) is drawn in docs/results/initiation-clutter.png (matplotlib: the
+plot extra). A run of one part (--only) writes docs/results/initiation-PART.md, not the
+whole table.
 Runs go through irdetect.batch.map_tasks: --jobs local processes, or a Dask cluster with
 --scheduler, so a 10,000-run study spreads over a cluster with one option.
 """
@@ -77,6 +81,16 @@ LIANG_METHODS = [
 ]
 
 
+SWEEP_DENSITIES = (0.01, 0.02, 0.03, 0.05, 0.07, 0.1)     # clutter points per km^2 per scan
+SWEEP_METHODS = [
+    ("Hough + SC, paper form (no CV check)", "hough-sc", {"verify": False}),
+    ("Hough + SC + CV check (irdetect default)", "hough-sc", {}),
+    ("fuzzy parallel Hough + CV check", "fuzzy-parallel-hough", {}),
+    ("M/N logic 3/4", "mn-logic", {}),
+]
+FIGURE = OUT.with_name("initiation-clutter.png")
+
+
 def _one_run(task):
     scenario, seed, overrides, window, params, sigma_kind = task
     scans, truth, attrs = simulate_scans(scenario, rng=seed, **overrides)
@@ -145,6 +159,58 @@ def zhang(run_all, runs):
                                     f"{'every cell met or beaten' if beats else 'NOT every cell beaten'}")
     lines += ["\nGoal (issue 4): beat every cell of the paper's Hough + SC row:\n"] + verdicts
     return lines
+
+
+def clutter_sweep(run_all, runs, figure=FIGURE):
+    """Pt (all targets) and Pc against the clutter density, zhang2010, M = 10: the table
+    and its figure (with the paper's Table 1 point at 0.03 per km^2)."""
+    _, base = load_scan_scenario("zhang2010")
+    M = 10
+    lines = [f"\n### zhang2010: Pt and Pc against the clutter density (M = {M}, {runs} Monte "
+             "Carlo runs per point)\n",
+             "| lambda per km^2 | " + " | ".join(f"{label} Pt % | Pc %"
+                                                 for label, _, _ in SWEEP_METHODS) + " |",
+             "|---|" + "---|---|" * len(SWEEP_METHODS)]
+    curves = {label: ([], []) for label, _, _ in SWEEP_METHODS}
+    for lam in SWEEP_DENSITIES:
+        cells = []
+        for label, method, extra in SWEEP_METHODS:
+            r = run_set(run_all, "zhang2010", runs, {"clutter_density": lam, "n_scans": M}, M,
+                        {**base, "method": method, **extra}, "cart")
+            curves[label][0].append(r["pt_all"])
+            curves[label][1].append(r["pc"])
+            cells.append(f"{r['pt_all']:.1f} | {r['pc']:.2f}")
+        lines.append(f"| {lam:g} | " + " | ".join(cells) + " |")
+        print(lines[-1], flush=True)
+    paper = [float(v) for v in ZHANG_PAPER[M]]
+    lines.append(f"\nThe paper's Table 1 (Hough + SC, lambda 0.03, M = {M}): Pt "
+                 f"{sum(paper[:3]) / 3:.1f} % (mean of T1-T3), Pc {paper[3]:g} %.")
+    drawn = clutter_figure(figure, curves, paper) if figure else None
+    if drawn:
+        lines.append(f"\n![Pt and Pc against the clutter density]({drawn.name})")
+    return lines
+
+
+def clutter_figure(path, curves, paper):
+    """PNG of the sweep: Pt and Pc against lambda per method, the paper's point as a star;
+    None without matplotlib."""
+    from _figures import save_curves
+
+    pt = [{"x": SWEEP_DENSITIES, "y": curves[k][0], "label": k} for k in curves]
+    pc = [{"x": SWEEP_DENSITIES, "y": [max(v, 0.01) for v in curves[k][1]], "label": k}
+          for k in curves]
+    star = {"ls": "none", "marker": "*", "color": "black"}
+    pt.append({"x": [0.03], "y": [sum(paper[:3]) / 3], "label": "paper, Hough + SC (Table 1)",
+               **star})
+    pc.append({"x": [0.03], "y": [paper[3]], "label": "paper, Hough + SC (Table 1)", **star})
+    return save_curves(path, [
+        {"xlabel": "clutter density lambda (points per km^2 per scan)",
+         "ylabel": "Pt, targets initiated (%)", "series": pt, "ylim": (0, 102),
+         "title": "zhang2010, M = 10: correct initiation"},
+        {"xlabel": "clutter density lambda (points per km^2 per scan)",
+         "ylabel": "Pc, false tracks / tracks (%; 0 drawn at 0.01)", "yscale": "log",
+         "series": pc, "title": "false-track share"},
+    ], width=6.5)
 
 
 def liang(run_all, runs):
@@ -236,7 +302,10 @@ def main(argv=None):
     ap.add_argument("--scheduler", help="Dask scheduler address (instead of --jobs)")
     ap.add_argument("--no-ir", action="store_true")
     ap.add_argument("--ir-seeds", type=int, default=20)
-    ap.add_argument("--only", choices=("zhang", "liang", "ir"))
+    ap.add_argument("--runs-sweep", type=int, default=20,
+                    help="Monte Carlo runs per clutter density of the sweep (20)")
+    ap.add_argument("--only", choices=("zhang", "liang", "ir", "sweep"),
+                    help="run one part; writes docs/results/initiation-PART.md")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args(argv)
     # run_all(fn, items) -> [fn(item) for item in items] on the batch executor
@@ -255,6 +324,9 @@ def main(argv=None):
              "verification of the supporting measurements (docs/initiation.md)."]
     if args.only in (None, "zhang"):
         lines += zhang(run_all, args.runs_zhang)
+    if args.only in (None, "sweep"):
+        lines += clutter_sweep(run_all, args.runs_sweep,
+                               figure=None if args.no_write else FIGURE)
     if args.only in (None, "liang"):
         lines += liang(run_all, args.runs_liang)
     if args.only in (None, "ir") and not args.no_ir:
@@ -263,8 +335,9 @@ def main(argv=None):
     text = "\n".join(lines) + "\n"
     print(text)
     if not args.no_write:
-        OUT.parent.mkdir(parents=True, exist_ok=True)
-        OUT.write_text(text)
+        out = OUT if args.only is None else OUT.with_name(f"initiation-{args.only}.md")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(text)
     return 0
 
 

@@ -247,8 +247,9 @@ def main(argv=None) -> int:
     else:
         data = measure(args)
         Path(args.json or Path(args.out).with_suffix(".json")).write_text(json.dumps(data))
-    text = report(data)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    figure = stage_figure(Path(args.out).with_name("throughput-stages.png"), data)
+    text = report(data, figure=figure.name if figure else None)
     Path(args.out).write_text(text)
     print(text)
     return 0
@@ -305,8 +306,28 @@ def measure(args) -> dict:
             "long_rows": long_rows}
 
 
-def report(data: dict) -> str:
-    """The markdown of docs/results/throughput.md from ``measure``'s results."""
+def stage_figure(path, data: dict):
+    """PNG of frames/s per stage (frames / seconds in the stage, 1 worker) for every frame
+    size, the default configuration and the fast profile; None without matplotlib."""
+    from _figures import save_bars
+
+    n = data["frames"]
+    panels = []
+    for label in ("default (auto)", "fast"):
+        groups = [{"label": name, "values": [n / max(st["timings"].get(s, 0.0), 1e-9)
+                                             for s in STAGES]}
+                  for name, lab, workers, st in data["stage_rows"]
+                  if lab == label and workers == 1]
+        if groups:
+            panels.append({"categories": list(STAGES), "groups": groups, "yscale": "log",
+                           "ylabel": "frames/s of the stage alone (1 worker)",
+                           "title": f"{label}: {n:,} frames per size"})
+    return save_bars(path, panels, width=6.5) if panels else None
+
+
+def report(data: dict, figure: str | None = None) -> str:
+    """The markdown of docs/results/throughput.md from ``measure``'s results; ``figure``
+    names the PNG of frames/s per stage, linked under the per-stage table."""
     n = data["frames"]
     load0, load1 = data["load"]
     cores = data["cores"]
@@ -373,6 +394,8 @@ def report(data: dict) -> str:
                      + " | ".join(f"{t.get(s, 0.0):.2f}" for s in STAGES)
                      + f" | {st['wall']:.2f} | {fps(n, st['wall'])} | {st['cpu']:.2f} | "
                      f"{fps(n, st['proc_cpu'])} |")
+    if figure:
+        lines += ["", f"![frames/s per stage, 1 worker]({figure})"]
     lines += [
         "",
         "## Against trackpy `locate`",

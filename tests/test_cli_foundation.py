@@ -151,3 +151,36 @@ def test_process_and_evaluate_a_recording_folder(cli, tmp_path):
     assert code == 0, err
     import json
     assert json.loads(out)["detection"]["targets"] == 3
+
+
+def test_convert_says_a_missing_input_before_an_existing_output(cli, tmp_path):
+    (tmp_path / "out.h5").write_bytes(b"")
+    code, _, err = cli("convert", "missing.h5", "-o", "out.h5")
+    assert code == 2 and "missing.h5" in err and "file not found" in err
+
+
+def test_evaluate_prints_a_legend_line_under_its_table(cli):
+    code, _, err = cli("simulate", "seq.h5", "--seed", "1", "--frames", "36", "--size", "64x64",
+                       "-q")
+    assert code == 0, err
+    code, _, err = cli("process", "seq.h5", "-o", "res.h5", "-q")
+    assert code == 0, err
+    code, out, err = cli("evaluate", "res.h5")
+    assert code == 0, err
+    last = out.strip().splitlines()[-1]
+    assert last.startswith("legend: ")
+    for words in ("pd = ", "pixel_fa = ", "pt = ", "pc = ", "gate = match distance (px)"):
+        assert words in last
+
+
+def test_every_help_reads_as_user_text(capsys):
+    from irdetect.cli import COMMANDS, main
+
+    for name, _, _ in COMMANDS:
+        with pytest.raises(SystemExit):
+            main([name, "--help"])
+        text = capsys.readouterr().out
+        assert "`" not in text and "SECTIONS" not in text, name
+    with pytest.raises(SystemExit):
+        main(["evaluate", "--help"])
+    assert "irdetect track" in capsys.readouterr().out     # not only process results

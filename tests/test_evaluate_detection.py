@@ -91,7 +91,7 @@ def test_cli_evaluate_bad_input(cli, tmp_path):
     code, _, err = cli("process", "notruth.h5", "-o", "res.h5", "-q")
     assert code == 0
     code, _, err = cli("evaluate", "res.h5", "--truth", "notruth.h5")
-    assert code == 2 and "has no /truth" in err and "Traceback" not in err
+    assert code == 2 and "no ground truth" in err and "Traceback" not in err
     code, _, err = cli("evaluate", "missing.h5", "--truth", "notruth.h5")
     assert code == 2 and "not found" in err
     code, _, err = cli("evaluate", "res.h5", "--truth", "notruth.h5", "--gate", "-1")

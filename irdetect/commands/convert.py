@@ -1,4 +1,5 @@
-"""Convert any readable sequence (HDF5, folder of images, video, .npy) to the HDF5 contract.
+"""Convert any readable sequence (HDF5, folder of images, multi-page TIFF, video, .npy) to
+the HDF5 contract.
 
 With --truth, a point annotation file (one 'x y' line per frame, x = column, y = row,
 0-based; the format of shared/data/real/*/truth.txt) is imported as /truth.
@@ -18,7 +19,7 @@ log = logging.getLogger(__name__)
 
 
 def add_arguments(p):
-    p.add_argument("input", help="HDF5 file, folder of images, video file or .npy")
+    p.add_argument("input", help="HDF5 file, folder of images, multi-page TIFF, video file or .npy")
     p.add_argument("-o", "--output", required=True, help="HDF5 file to write")
     p.add_argument("--truth", help="point annotation file, one 'x y' line per frame")
     p.add_argument("--dataset", help="HDF5 input: dataset path (default /frames)")
@@ -30,8 +31,8 @@ def run(args) -> int:
     if args.frame_rate is not None and not args.frame_rate > 0:
         raise InputError(f"--frame-rate must be > 0, got {args.frame_rate}")
     inputs = (args.input, args.truth)
-    check_output_path(args.output, args.force, inputs)
-    with open_sequence(args.input, args.dataset) as src:
+    with open_sequence(args.input, args.dataset) as src:     # a missing input is said first
+        check_output_path(args.output, args.force, inputs)
         truth = (read_point_annotations(args.truth, len(src)) if args.truth else src.truth)
         bar = tqdm(total=len(src), unit="frame", disable=not args.progress, desc="convert")
 

@@ -1,20 +1,20 @@
 """Score a results file against ground truth.
 
-Truth comes from ``--truth`` (a sequence file with /truth, a point-annotation text file
-``x y`` per frame, or a folder of frames with ``truth.txt`` in it or in its parent),
-else from the results file's own input when that has /truth or such a ``truth.txt``.
-Each section scores one table when the results file holds it:
+Reads the results of irdetect process (detections, initiated tracks), irdetect track
+(frame-by-frame tracks) or irdetect initiate (tracks on radar-style scans), and scores each
+table it holds:
 
-  detection   /detections  Pd per window (one-to-one within --gate px of the true path),
-                           false detections per window and per megapixel-window,
-                           pixel-level Fa (IRSTD convention, 3x3 px per detection)
-  track initiation /tracks   Pt per target and overall, Pc, velocity error (lines within
-                           3 sigma of every true position, one-to-one; docs/initiation.md);
-                           pt_path, n_false_path: the track's position in each of its
-                           frames within 2 x --gate of the target in 80 % of them
-                           /scan_tracks of irdetect initiate: the same per window, OSPA, GOSPA
+  detection         Pd per window (a detection within --gate px of the true path, one
+                    to one), false detections per window and per megapixel-window,
+                    pixel-level false-alarm rate (3x3 px per false detection)
+  track initiation  Pt per target and overall, Pc (share of false tracks), speed error;
+                    pt_path: a track within 2 x --gate px of its target in 80 % of its
+                    frames; on scans the same per window, and OSPA, GOSPA
+  tracking          CLEAR-MOT (MOTA, MOTP in px), IDF1 and identity switches
 
-Other sections (initiated tracks, frame-by-frame tracks) register in ``SECTIONS``.
+Truth comes from --truth, else from the sequence the results were made from: its /truth,
+or the truth.txt of its recording folder. A legend line under the table says what each
+figure means.
 """
 
 from __future__ import annotations
@@ -27,14 +27,18 @@ import numpy as np
 
 from irdetect import tables
 from irdetect.errors import InputError
-from irdetect.io import open_sequence, read_point_annotations, read_results
+from irdetect.io import read_results
 
 
 def add_arguments(p):
-    p.add_argument("results", help="results file written by irdetect process")
-    p.add_argument("--truth", help="sequence file with /truth, a text file of 'x y' per "
-                   "frame, or a folder of frames with truth.txt in it or beside it (default: "
-                   "the results file's input, when it has truth)")
+    import argparse
+
+    p.formatter_class = argparse.RawDescriptionHelpFormatter    # keep the list above as is
+    p.add_argument("results", help="results file of irdetect process, track or initiate")
+    p.add_argument("--truth", metavar="FILE",
+                   help="a sequence with /truth, a text file of 'x y' per frame, or a "
+                   "recording folder (default: the results' input sequence: its /truth or "
+                   "its recording folder's truth.txt)")
     p.add_argument("--gate", type=float, default=3.0,
                    help="match distance in px between a detection and the true path (3)")
     p.add_argument("--json", action="store_true", help="print the scores as JSON")
@@ -57,7 +61,8 @@ def _mot_section(results, truth, ctx) -> dict:
     return clear_mot(truth, results["track_points"], gate=ctx["gate"])
 
 
-#: Sections run in order, each when its table is in the results file. Add yours here:
+#: Sections run in order, each when its table is in the results file (add new scores
+#: here, and their meaning to LEGEND):
 #: ``(title, table name, function(results, truth, context) -> dict of scores)``; the
 #: context holds n_frames, length, step, shape (H, W), gate, frame_rate.
 def _initiation_section(results, truth, ctx) -> dict:
@@ -121,39 +126,53 @@ def evaluate(results_path, truth_path=None, *, gate: float = 3.0) -> dict:
 
 
 def _load_truth(results, results_path, truth_path):
-    """(TRUTH table, sequence shape or None)."""
+    """(TRUTH table, sequence shape or None): ``--truth``, else the truth of the results'
+    input sequence, by the rule of ``irdetect.io.find_truth``."""
+    from irdetect.io import find_truth
+
+    sequence = None
     if truth_path is None:
         candidates = [results.attrs.get("input_path"), results.attrs.get("input")]
         folder = Path(results_path).resolve().parent
         for name in filter(None, candidates):
             for path in (Path(name), folder / name):
                 if path.exists():
-                    truth_path = path
+                    sequence = path
                     break
-            if truth_path is not None:
+            if sequence is not None:
                 break
-        if truth_path is None:
+        if sequence is None:
             raise InputError("no --truth given and the results' input file was not found",
                              results_path)
-    p = Path(truth_path)
-    if p.is_dir():
-        # a folder of frames: its point annotations sit in it or beside it
-        # (../shared/data/real/NAME/{frames/, truth.txt})
-        found = [q / "truth.txt" for q in (p, p.parent) if (q / "truth.txt").is_file()]
-        if not found:
-            raise InputError("a folder of frames has no truth.txt in it or beside it; "
-                             "give --truth ANNOTATIONS.txt", p)
-        p = found[0]
-    if p.suffix.lower() in (".txt", ".csv"):
-        return read_point_annotations(p, results.attrs.get("n_frames")), None
-    with open_sequence(p) as src:
-        if src.truth is None:
-            raise InputError("has no /truth to score against", p)
-        return src.truth, tuple(src.shape)
+    found = find_truth(truth_path, sequence=sequence, n_frames=results.attrs.get("n_frames"))
+    return found.table, found.shape
+
+
+#: what a figure of the table means, with its unit: printed, for the figures shown, on one
+#: line under the table
+LEGEND = {
+    "pd": "pd = detected / target-windows",
+    "false": "false = detections near no target",
+    "pixel_fa": "pixel_fa = false-alarm pixels / all pixels (3x3 px per false detection)",
+    "pt_overall": "pt = targets with a track / targets",
+    "pc": "pc = false tracks / tracks",
+    "speed_error_median": "speed_error = |track - true velocity| / true speed",
+    "pt_path": "pt_path = pt, a track within 2 x gate of its target in 80 % of its frames",
+    "mota": "mota = 1 - (misses + false + switches) / true positions",
+    "motp": "motp = mean distance of the matches (px)",
+    "ospa_mean": "ospa = optimal subpattern assignment distance per window (m)",
+    "gate": "gate = match distance (px)",
+}
+
+
+def legend_line(scores: dict) -> str:
+    """One line saying what the figures of ``scores`` mean (those in ``LEGEND``)."""
+    keys = {key for values in scores.values() for key in values}
+    return "legend: " + "; ".join(text for key, text in LEGEND.items() if key in keys)
 
 
 def format_table(scores: dict) -> str:
-    """Plain-text table, one block per section."""
+    """Plain-text table, one block per section, and the legend line under it."""
     lines = []
     for title, values in scores.items():
         lines.append(f"{title}")
@@ -163,6 +182,7 @@ def format_table(scores: dict) -> str:
             else:
                 text = str(value)
             lines.append(f"  {key:<22} {text}")
+    lines.append(legend_line(scores))
     return "\n".join(lines)
 
 

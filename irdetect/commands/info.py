@@ -14,7 +14,8 @@ RESULT_TABLES = ("detections", "candidates", "segments", "tracks", "track_points
 
 
 def add_arguments(p):
-    p.add_argument("file", help="sequence (HDF5, image folder, video, .npy), scans or results")
+    p.add_argument("file", help="sequence (HDF5, image folder, multi-page TIFF, video, .npy), "
+                   "scans or results")
     p.add_argument("--dataset", help="HDF5 sequence: dataset path (default /frames)")
 
 

@@ -1,8 +1,10 @@
-"""Draw one picture of a results file: the tracks over the max projection of the sequence
-(left) and the Hough accumulator of the detections with its candidate cells and the
-subtractive-clustering centres (right) -- the picture of peak clustering and its fix.
+"""Draw one figure of a results file: the tracks over the max projection of the sequence
+(left, with a legend) and the Hough accumulator of the detections with its candidate cells
+and the subtractive-clustering centres (right, rho and theta axes, a colour bar of the
+votes) -- the picture of peak clustering and its fix. Needs matplotlib
+(pip install irdetect[plot]).
 
-The sequence is found from the results' `input` attribute (beside the results file or in
+The sequence is found from the results' input attribute (beside the results file or in
 the current folder) unless given with --sequence. See docs/video.md.
 """
 
@@ -17,16 +19,20 @@ log = logging.getLogger(__name__)
 
 
 def add_arguments(p):
-    p.add_argument("results", help="results file of `irdetect process`")
-    p.add_argument("-o", "--output", required=True, help="image file (.png, .jpg, .bmp, .tif)")
+    p.add_argument("results", help="results file of irdetect process")
+    p.add_argument("-o", "--output", required=True,
+                   help="figure file (.png, .jpg, .tif, .pdf or .svg)")
     p.add_argument("--sequence", help="the sequence the results were made from (default: "
                    "the results' input attribute, looked up beside the results file)")
     p.add_argument("--dataset", help="HDF5 sequence: dataset path (default /frames)")
     p.add_argument("--raw", action="store_true",
                    help="max projection of the raw frames (default: of the suppressed frames)")
     p.add_argument("--truth", nargs="?", const=True, default=None, metavar="FILE",
-                   help="draw ground truth paths in green (the sequence's /truth or FILE)")
-    p.add_argument("--scale", type=float, help="output pixels per source pixel")
+                   help="draw ground truth: alone, the sequence's /truth or its recording "
+                   "folder's truth.txt; or FILE (a sequence with /truth, a text file of "
+                   "'x y' per frame, or a recording folder)")
+    p.add_argument("--scale", type=float, help="figure pixels per source pixel (default: "
+                   "enough for 480 px width, at most 4)")
     p.add_argument("--gamma", type=float, default=1.0, help="display gamma (default 1)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
 
@@ -48,11 +54,12 @@ def find_sequence(results, given=None):
 def run(args) -> int:
     from irdetect.commands.video import resolve_truth
     from irdetect.io import check_output_path, open_sequence, read_results
-    from irdetect.plot import plot_results, write_image
+    from irdetect.plot import require_matplotlib, plot_results, write_figure
 
     if args.scale is not None and not 0.05 <= args.scale <= 16:
         raise InputError(f"--scale must lie in [0.05, 16], got {args.scale}")
     check_output_path(args.output, args.force, inputs=(args.results,))
+    require_matplotlib()                             # the install hint before any work
     if not Path(args.results).exists():
         raise InputError("results file not found", args.results)
     results = read_results(args.results)
@@ -62,12 +69,13 @@ def run(args) -> int:
                     "(give it with --sequence)", results.attrs.get("input"), args.results)
         if args.truth is not None:
             raise InputError("--truth needs the sequence; give it with --sequence")
-        image = plot_results(results, None, scale=args.scale, gamma=args.gamma)
+        fig = plot_results(results, None, scale=args.scale, gamma=args.gamma)
     else:
         with open_sequence(seq, args.dataset) as src:
-            image = plot_results(results, src, suppressed=not args.raw,
+            fig = plot_results(results, src, suppressed=not args.raw,
                                  truth=resolve_truth(args.truth, src), scale=args.scale,
                                  gamma=args.gamma, progress=args.progress)
-    write_image(args.output, image, force=args.force, inputs=(args.results, seq))
-    log.info("wrote %s (%dx%d px)", args.output, image.shape[1], image.shape[0])
+    write_figure(args.output, fig, force=args.force, inputs=(args.results, seq))
+    width, height = fig.canvas.get_width_height()
+    log.info("wrote %s (%dx%d px)", args.output, width, height)
     return 0

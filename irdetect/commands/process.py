@@ -31,8 +31,8 @@ DEFAULT_THREADS = 2
 
 def add_arguments(p):
     p.add_argument("inputs", nargs="+", metavar="INPUT",
-                   help="sequence: HDF5 file, folder of images, video file or .npy; several "
-                   "inputs, folders of sequences or glob patterns with --out-dir")
+                   help="sequence: HDF5 file, folder of images, multi-page TIFF, video file or "
+                   ".npy; several inputs, folders of sequences or glob patterns with --out-dir")
     p.add_argument("-o", "--output",
                    help="results file of a single input (default: INPUT_NAME.irdetect.h5 in "
                    "the current folder)")
@@ -48,7 +48,7 @@ def add_arguments(p):
                    "with --profile, applied on top of the profile")
     p.add_argument("--profile", default="default", metavar="NAME",
                    help=f"named configuration: {', '.join(profile_names())} (default: "
-                   "default; `fast`: no matched-filter verification and no fast band, "
+                   "default; fast: no matched-filter verification and no fast band, "
                    "3-4x the frames per CPU-second, for targets of SNR >= 3 up to about 2 "
                    "px/frame; docs/cli.md)")
     p.add_argument("--threads", type=int, metavar="N",

@@ -24,7 +24,8 @@ log = logging.getLogger(__name__)
 
 
 def add_arguments(p):
-    p.add_argument("input", help="sequence: HDF5 file, folder of images, video file or .npy")
+    p.add_argument("input", help="sequence: HDF5 file, folder of images, "
+                            "multi-page TIFF, video file or .npy")
     p.add_argument("-o", "--output",
                    help="results file (default: INPUT_NAME.track.h5 in the current folder)")
     p.add_argument("--config", help="TOML file; its [track] table sets the tracker (docs/tracking.md)")

@@ -17,8 +17,9 @@ from irdetect.errors import InputError
 
 def add_arguments(p, *, standalone: bool = True):
     if standalone:
-        p.add_argument("input", help="sequence: HDF5 file, folder of images, video file or .npy")
-        p.add_argument("results", help="results file of `irdetect process` (or track)")
+        p.add_argument("input", help="sequence: HDF5 file, folder of images, "
+                                "multi-page TIFF, video file or .npy")
+        p.add_argument("results", help="results file of irdetect process (or track)")
         p.add_argument("-o", "--output", required=True,
                        help="out.mp4, out.avi, or a folder name (no suffix) for PNG frames")
         p.add_argument("--dataset", help="HDF5 input: dataset path (default /frames)")
@@ -35,8 +36,9 @@ def add_style_arguments(p):
                    "enough for 640 px width, at most 4)")
     g.add_argument("--every", type=int, default=1, metavar="N", help="write every N-th frame")
     g.add_argument("--truth", nargs="?", const=True, default=None, metavar="FILE",
-                   help="draw ground truth in green: the sequence's /truth, or FILE with "
-                   "one 'x y' line per frame")
+                   help="draw ground truth in green: alone, the sequence's /truth or its "
+                   "recording folder's truth.txt; or FILE (a sequence with /truth, a text "
+                   "file of 'x y' per frame, or a recording folder)")
     g.add_argument("--candidates", action="store_true",
                    help="also draw unconfirmed candidates (small grey crosses)")
     g.add_argument("--panels", action="store_true",
@@ -51,17 +53,14 @@ def add_style_arguments(p):
 
 
 def resolve_truth(option, source):
-    """The truth table asked for by --truth (None when not asked)."""
-    from irdetect.io import read_point_annotations
+    """The truth table asked for by --truth (None when not asked): ``--truth FILE``, or
+    with a bare ``--truth`` the sequence's own (``irdetect.io.find_truth``)."""
+    from irdetect.io import find_truth
 
     if option is None:
         return None
-    if option is True:
-        if source.truth is None:
-            raise InputError("--truth: the sequence holds no /truth; give an annotation "
-                             "file: --truth FILE", source.path)
-        return source.truth
-    return read_point_annotations(option, len(source))
+    given = None if option is True else option
+    return find_truth(given, sequence=source, n_frames=len(source)).table
 
 
 def render(source, results, output, args, *, force: bool):

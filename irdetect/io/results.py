@@ -175,7 +175,17 @@ class ResultsWriter(AtomicH5):
 
 @dataclass
 class Results:
-    """A results file read back: its tables and root attributes."""
+    """A results file read back: its tables and root attributes.
+
+    Attributes
+    ----------
+    path : str
+    tables : dict
+        Table name (``detections``, ``tracks``, ...) -> structured ndarray, or
+        ``pandas.DataFrame`` (one column per field) when read with ``as_frame=True``.
+    attrs : dict
+        Root attributes (``irdetect_version``, ``input``, ``combined_length``, ...).
+    """
 
     path: str
     tables: dict = field(default_factory=dict)
@@ -199,14 +209,40 @@ class Results:
         return config
 
 
-def read_results(path: str | os.PathLike) -> Results:
+def read_results(path: str | os.PathLike, *, as_frame: bool | None = False) -> Results:
     """Read every table and root attribute of a results file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A results file (``docs/format.md``).
+    as_frame : bool or None
+        False (default here): tables as numpy structured arrays; True: as
+        ``pandas.DataFrame`` (pandas must be installed); None: DataFrames when pandas is
+        installed, else arrays (the default of ``irdetect.read_results``).
 
     Raises
     ------
     InputError
         Missing or unreadable file.
+    ImportError
+        ``as_frame=True`` without pandas.
     """
+    results = _read_results(path)
+    if as_frame is False:
+        return results
+    try:
+        import pandas as pd
+    except ImportError:
+        if as_frame:
+            raise ImportError("read_results(as_frame=True) needs pandas: "
+                              "pip install irdetect[pandas]") from None
+        return results
+    results.tables = {name: pd.DataFrame(table) for name, table in results.tables.items()}
+    return results
+
+
+def _read_results(path) -> Results:
     check_input_file(path, "results file")
     try:
         with h5py.File(path, "r") as f:

@@ -1,13 +1,15 @@
 """Sequence readers behind one interface, read lazily so long sequences stream.
 
 ``open_sequence(path)`` picks the reader from the path: an HDF5 file, a folder of images
-(PNG / TIFF / BMP, 8 or 16 bit, natural sort), a video file (OpenCV) or a ``.npy`` file
+(PNG / TIFF / BMP, 8 or 16 bit, natural sort), a multi-page TIFF or OME-TIFF stack
+(``tifffile``, the ``tiff`` extra), a video file (OpenCV) or a ``.npy`` file
 (memory-mapped). Every reader is a :class:`FrameSource`: frames of shape (H, W), sliced
 as ``src[a:b]`` -> ndarray of shape (b - a, H, W) in the file's dtype.
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import re
 from pathlib import Path
@@ -22,6 +24,7 @@ from irdetect.errors import InputError, check_input_file
 IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg", ".pgm"}
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".mpg", ".mpeg", ".wmv", ".m4v"}
 HDF5_SUFFIXES = {".h5", ".hdf5", ".hdf", ".he5"}
+TIFF_SUFFIXES = {".tif", ".tiff"}
 SUPPORTED_DTYPES = (np.uint8, np.uint16, np.int16, np.int32, np.float32, np.float64)
 
 
@@ -374,13 +377,89 @@ class NpySource(FrameSource):
         return np.array(self._array[start:stop])
 
 
+class TiffSource(FrameSource):
+    """Frames of a multi-page TIFF or OME-TIFF stack, one page per frame, read lazily
+    with ``tifffile`` (the ``tiff`` extra: ``pip install irdetect[tiff]``).
+
+    The file's first image series must be a stack of greyscale pages of one size: axes of
+    length 1 are dropped, what remains must be (T, H, W). 8/16-bit and float pages are
+    read as stored. ImageJ's frame interval gives ``frame_rate``. A single page is not a
+    sequence and is refused, as a single image of any other type is.
+    """
+
+    def __init__(self, path):
+        self.path = os.fspath(path)
+        try:
+            import tifffile
+        except ImportError:
+            raise InputError("reading a TIFF stack needs tifffile: pip install irdetect[tiff]",
+                             path) from None
+        self._errors = (tifffile.TiffFileError, OSError, ValueError, IndexError, KeyError)
+        # tifffile logs what it finds wrong in a damaged file; the InputError says it once
+        logging.getLogger("tifffile").setLevel(logging.CRITICAL)
+        try:
+            self._file = tifffile.TiffFile(self.path)
+        except FileNotFoundError:
+            raise InputError("file not found", path) from None
+        except self._errors as exc:
+            raise InputError(f"not a readable TIFF file ({_short(exc)})", path) from None
+        try:
+            self._open()
+        except InputError:
+            self._file.close()
+            raise
+        except self._errors as exc:
+            self._file.close()
+            raise InputError(f"corrupt or truncated TIFF file ({_short(exc)})", path) from None
+
+    def _open(self):
+        series = self._file.series[0]
+        shape = tuple(int(n) for n in series.shape)
+        if "S" in series.axes:
+            raise InputError("colour TIFF pages are not supported (expected greyscale)",
+                             self.path)
+        kept = [n for n in shape[:-2] if n > 1]
+        if not kept:
+            raise InputError("a single image is not a sequence; give a multi-page TIFF or "
+                             "the folder of frames", self.path)
+        if len(kept) > 1:
+            raise InputError(f"the TIFF holds a {len(shape)}-D series (axes {series.axes}, "
+                             f"shape {shape}); expected one stack of pages (T, H, W)",
+                             self.path)
+        self.shape = (kept[0],) + shape[-2:]
+        if len(series.pages) != self.shape[0]:
+            raise InputError(f"corrupt or truncated TIFF file ({len(series.pages)} pages "
+                             f"readable of {self.shape[0]})", self.path)
+        self.dtype = np.dtype(series.dtype)
+        _check_stack(self.path, self.shape, self.dtype)
+        self._series = series
+        interval = (self._file.imagej_metadata or {}).get("finterval")
+        self.frame_rate = 1.0 / float(interval) if interval else None
+        self._read(0, 1)                       # a truncated file fails here, not mid-run
+        self._read(self.shape[0] - 1, self.shape[0])
+
+    def _read(self, start, stop):
+        if stop <= start:
+            return np.empty((0,) + self.shape[1:], self.dtype)
+        try:
+            frames = self._file.asarray(key=range(start, stop), series=0)
+        except self._errors as exc:
+            raise InputError(f"corrupt or truncated TIFF file ({_short(exc)})",
+                             self.path) from None
+        return np.asarray(frames, self.dtype).reshape((stop - start,) + self.shape[1:])
+
+    def close(self):
+        self._file.close()
+
+
 def open_sequence(path: str | os.PathLike, dataset: str | None = None) -> FrameSource:
     """Open an image sequence for lazy reading; the path decides the reader.
 
     Parameters
     ----------
     path : str or os.PathLike
-        An HDF5 file, a folder of images, a video file or a ``.npy`` file.
+        An HDF5 file, a folder of images, a multi-page TIFF, a video file or a ``.npy``
+        file.
     dataset : str, optional
         HDF5 only: the dataset path (default ``/frames``, else the only 3-D dataset).
 
@@ -411,10 +490,12 @@ def open_sequence(path: str | os.PathLike, dataset: str | None = None) -> FrameS
         return VideoSource(p)
     if suffix in HDF5_SUFFIXES or h5py.is_hdf5(p):
         return HDF5Source(p, dataset)
+    if suffix in TIFF_SUFFIXES:
+        return TiffSource(p)
     if suffix in IMAGE_SUFFIXES:
         raise InputError("a single image is not a sequence; give the folder of frames", path)
-    raise InputError("unknown input type (expected .h5, a folder of images, a video or .npy)",
-                     path)
+    raise InputError("unknown input type (expected .h5, a folder of images, a multi-page "
+                     "TIFF, a video or .npy)", path)
 
 
 def _short(exc: Exception) -> str:
