@@ -12,7 +12,8 @@ Each section scores one table when the results file holds it:
                            3 sigma of every true position, one-to-one; docs/initiation.md);
                            pt_path, n_false_path: the track's position in each of its
                            frames within 2 x --gate of the target in 80 % of them
-                           /scan_tracks of irdetect initiate: the same per window, OSPA, GOSPA
+                           /tracks of irdetect initiate (scans; or the deprecated
+                           /scan_tracks): the same per window, OSPA, GOSPA
 
 Other sections (initiated tracks, frame-by-frame tracks) register in ``SECTIONS``.
 """
@@ -88,8 +89,8 @@ def evaluate(results_path, truth_path=None, *, gate: float = 3.0) -> dict:
     if not math.isfinite(gate) or gate <= 0:
         raise InputError(f"--gate must be a positive number, got {gate}")
     results = read_results(results_path)
-    if "scan_tracks" in results:              # irdetect initiate on scans: scans truth
-        from irdetect.metrics.initiation import evaluate_scan_results
+    from irdetect.metrics.initiation import evaluate_scan_results, scan_tracks_of
+    if scan_tracks_of(results, warn=False) is not None:     # initiate on scans: scans truth
         return {"track initiation (scans)": evaluate_scan_results(results, truth_path)}
     truth, seq_shape = _load_truth(results, results_path, truth_path)
     attrs = results.attrs

@@ -23,6 +23,11 @@ def describe(path, dataset=None) -> list[str]:
     if p.is_file() and h5py.is_hdf5(p):
         with h5py.File(p, "r") as f:
             is_results = dataset is None and any(name in f for name in RESULT_TABLES)
+            # a scans file (/scans, maybe /truth) is input, not results
+            is_scans = is_results and not any(n in f for n in RESULT_TABLES if n != "scans")
+        if is_scans:
+            from irdetect.io.scans import describe_scans
+            return describe_scans(path)
         if is_results:
             return _describe_results(path)
     with open_sequence(path, dataset) as src:
@@ -41,7 +46,10 @@ def describe(path, dataset=None) -> list[str]:
 
 def _describe_results(path) -> list[str]:
     res = read_results(path)
-    lines = [f"{path}: irdetect results (version {res.attrs.get('irdetect_version', '?')})"]
+    tracks = res.tables.get("tracks", res.tables.get("scan_tracks"))
+    kind = ("irdetect results of initiate on scans"
+            if tracks is not None and "scan_start" in tracks.dtype.names else "irdetect results")
+    lines = [f"{path}: {kind} (version {res.attrs.get('irdetect_version', '?')})"]
     if "input" in res.attrs:
         lines.append(f"  input {res.attrs['input']}")
     for name, table in res.tables.items():

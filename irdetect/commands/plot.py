@@ -17,7 +17,8 @@ log = logging.getLogger(__name__)
 
 
 def add_arguments(p):
-    p.add_argument("results", help="results file of `irdetect process`")
+    p.add_argument("results", help="results file of `irdetect process` (or of `irdetect "
+                   "initiate` on scans: measurements, truth and tracks)")
     p.add_argument("-o", "--output", required=True, help="image file (.png, .jpg, .bmp, .tif)")
     p.add_argument("--sequence", help="the sequence the results were made from (default: "
                    "the results' input attribute, looked up beside the results file)")
@@ -54,6 +55,13 @@ def run(args) -> int:
     if not Path(args.results).exists():
         raise InputError("results file not found", args.results)
     results = read_results(args.results)
+    from irdetect.metrics.initiation import scan_tracks_of
+    if scan_tracks_of(results, warn=False) is not None:    # irdetect initiate on scans
+        from irdetect.plot_scans import plot_scan_results
+        image = plot_scan_results(results)
+        write_image(args.output, image, force=args.force)
+        log.info("wrote %s (scans, %dx%d px)", args.output, image.shape[1], image.shape[0])
+        return 0
     seq = find_sequence(results, args.sequence)
     if seq is None:
         log.warning("sequence %r not found beside %s; drawing over a dark background "

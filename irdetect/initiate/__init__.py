@@ -35,7 +35,8 @@ Layout (one module per role, one contract): ``hough_sc`` (hough-sc, hough, nms, 
 ``initiate(points, *, params) -> (rows, members)`` (``contract``: ``initiate``, the
 dispatch); ``common`` the constant-velocity check and the merging of windows; ``base`` the
 parameters, the window of measurements, support recovery and result rows; ``images``
-``initiate_detections`` and the tracks' positions; ``scans`` ``initiate_scans``.
+``initiate_detections`` and the tracks' positions; ``scans`` ``initiate_scans``;
+``sensor`` the sensor model and the parameters derived from it (``derive_params``).
 """
 
 from irdetect.initiate.base import DEFAULTS, METHODS, POINT, ROW, check_params
@@ -44,12 +45,13 @@ from irdetect.initiate.common import (_fit_chi2, fit_constant_velocity, merge_wi
 from irdetect.initiate.contract import METHOD_MODULES, initiate, initiate_points
 from irdetect.initiate.images import camera_at, initiate_detections, track_positions
 from irdetect.initiate.scans import initiate_scans
+from irdetect.initiate.sensor import SensorModel, derive_params
 
 # the names of the single module this package replaced (irdetect/initiate.py)
 _ROW = ROW
 _check_params = check_params
 
-__all__ = ["DEFAULTS", "METHODS", "METHOD_MODULES", "POINT", "ROW", "camera_at",
-           "check_params", "fit_constant_velocity", "initiate", "initiate_detections",
-           "initiate_points", "initiate_scans", "merge_windows", "scan_windows",
-           "track_positions"]
+__all__ = ["DEFAULTS", "METHODS", "METHOD_MODULES", "POINT", "ROW", "SensorModel",
+           "camera_at", "check_params", "derive_params", "fit_constant_velocity", "initiate",
+           "initiate_detections", "initiate_points", "initiate_scans", "merge_windows",
+           "scan_windows", "track_positions"]
