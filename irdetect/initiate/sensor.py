@@ -129,8 +129,8 @@ def derive_params(sensor: SensorModel, scans, *, window: int | None = None) -> d
       rho_step) (at least 16, at most 720): a theta cell of pi / n_theta turns a track of
       length L by at most L pi / (2 n_theta) <= rho_step / 2 across its cell;
     * ``tile`` = 2 (L + 2 gate s) (any track of the window lies wholly inside one tile,
-      whose stride is tile / 2), or 0 (one accumulator) when that is at least half the
-      extent of the measurements; ``rho_step`` grows when the tiles' grid would exceed
+      whose stride is tile / 2), or 0 (one accumulator) when that is at least the extent
+      of the measurements; ``rho_step`` grows when the tiles' grid would exceed
       ``GRID_CELLS`` cells;
     * ``vote_fraction`` = max(0.6, 4 / M) (capped at 1): a candidate cell needs at least
       4 votes and 60 % of the window (zhang2010's 0.6 of 10, liang2015's 4 of 5);
@@ -167,7 +167,7 @@ def derive_params(sensor: SensorModel, scans, *, window: int | None = None) -> d
     L = sensor.speed_max * (M - 1) * T
     rho_step = 2.0 * s
     tile = 2.0 * (L + 2 * gate * s)
-    if not tile < 0.5 * extent:
+    if not tile < extent:
         tile = 0.0
     n_theta = int(min(720, max(16, math.ceil(math.pi * L / rho_step))))
     rho_step = _fit_grid(rho_step, tile, n_theta, x, y)

@@ -193,7 +193,7 @@ def speed_range(s: ScanScenario) -> tuple[float, float]:
 
 
 def random_scenario(rng: np.random.Generator | int | None = None, *, polar: bool = False,
-                    n_scans: int = 10) -> ScanScenario:
+                    n_scans: int = 10, clutter: str = "region") -> ScanScenario:
     """A random scans scene of any scale (the benchmark of issue 17).
 
     Region side E log-uniform in [10, 500] units (the file's units: km, m, anything);
@@ -205,7 +205,10 @@ def random_scenario(rng: np.random.Generator | int | None = None, *, polar: bool
     (polar: mid-window at 30-90 % of the range, azimuth 10-80 degrees); clutter density lambda uniform in [0, 0.1] per scaled unit^2,
     the region being 120 scaled units on a side as zhang2010's 120 km: a Poisson count of
     mean lambda x 120^2 x (area / E^2) per scan, uniform over the region (0 to 1,440 per
-    scan over the square, as zhang2010 at lambda 0 to 0.1).
+    scan over the square, as zhang2010 at lambda 0 to 0.1). ``clutter="sigma"`` scales
+    the clutter to the sensor instead: lambda uniform in [0, 0.001] per sigma^2 per scan
+    (zhang2010's lambda 0 to 0.1 per km^2 at sigma = 100 m), a mean count of
+    lambda x area / sigma^2.
 
     Returns
     -------
@@ -219,6 +222,10 @@ def random_scenario(rng: np.random.Generator | int | None = None, *, polar: bool
     vmax = float(rng.uniform(0.003, 0.03)) * E / T
     vmin = vmax / 4
     lam = float(rng.uniform(0.0, 0.1))
+    if clutter not in ("region", "sigma"):
+        raise ValueError(f"clutter must be 'region' or 'sigma', got {clutter!r}")
+    # mean clutter count per scan over the square E x E
+    count = lam * 120**2 if clutter == "region" else lam / 100 * E * E / sigma**2
     J = int(rng.integers(2, 11))
     speed = rng.uniform(vmin, vmax, J)
     heading = rng.uniform(0, 2 * np.pi, J)
@@ -233,7 +240,7 @@ def random_scenario(rng: np.random.Generator | int | None = None, *, polar: bool
         sa = math.degrees(sr / (E / 2) * float(rng.uniform(0.5, 2.0)))
         return ScanScenario(n_scans=n_scans, period=T, region=(0.0, E, 0.0, E), polar=True,
                             sigma=sr, sigma_range=sr, sigma_azimuth=sa, max_range=E,
-                            azimuth_span=(0.0, 90.0), clutter_mean=lam * 120**2 * np.pi / 4,
+                            azimuth_span=(0.0, 90.0), clutter_mean=count * np.pi / 4,
                             targets=tuple(zip(x0, vx, y0, vy)), speed_min=vmin,
                             speed_max=vmax)
     lo, hi = 0.05 * E + np.abs(vx) * dur, 0.95 * E - np.abs(vx) * dur
@@ -243,6 +250,6 @@ def random_scenario(rng: np.random.Generator | int | None = None, *, polar: bool
     y0 = np.where(vy > 0, rng.uniform(0.05 * E, np.maximum(0.05 * E, hi)),
                   rng.uniform(np.minimum(lo, 0.95 * E), 0.95 * E))
     return ScanScenario(n_scans=n_scans, period=T, region=(0.0, E, 0.0, E), sigma=sigma,
-                        clutter_mean=lam * 120**2,
+                        clutter_mean=count,
                         clutter_density=0.0, targets=tuple(zip(x0, vx, y0, vy)),
                         speed_min=vmin, speed_max=vmax)
