@@ -137,11 +137,16 @@ def derive_params(sensor: SensorModel, scans, *, window: int | None = None) -> d
     * ``min_hits`` = n / M, n the points a track needs (``min_points``): the same
       max(4, 0.6 M), more when the clutter is dense enough that chains of n clutter
       points would pass the constant-velocity check;
-    * ``v_min``, ``v_max`` the speed range; ``gate`` 3 sigma, ``fit_confidence`` 0.99;
+    * ``v_min``, ``v_max`` = the speed range widened by ``gate`` sigma_v, the speed error
+      of a least-squares fit over the window, sigma_v = s sqrt(12 / (M (M^2 - 1))) / T
+      (a slow target under a large error would otherwise fail the speed gate; L above
+      uses this v_max); ``gate`` 3 sigma, ``fit_confidence`` 0.99;
     * ``confirm_m`` / ``confirm_n``: M - 1 of M for M <= 5, else 3 of 4 (M/N logic);
-    * fuzzy parallel Hough: ``q1`` 0.25, ``q2`` 0.3 with ``merge_peaks``
-      (docs/initiation.md: the paper's 0.65 loses the weakest peak), ``parallel_fraction``
-      0.8;
+    * fuzzy parallel Hough: ``q1`` 0.1 (a scan's point may lie 2.15 sigma_rho from the
+      cell's line, exp(-2.15^2 / 2) = 0.1; the paper's 0.25, 1.67 sigma, dropped 14 % of
+      the targets of random Cartesian scenes with 2-sigma cells), ``q2`` 0.3 with
+      ``merge_peaks`` (docs/initiation.md: the paper's 0.65 loses the weakest peak),
+      ``parallel_fraction`` 0.8;
     * ``sigma`` = s for Cartesian measurements; for polar ones ``sigma`` = sigma_range
       (the floor of every measurement's error), ``sigma_range``, ``sigma_azimuth`` as given
       (each measurement's error ellipse then comes from its own range).
@@ -164,7 +169,11 @@ def derive_params(sensor: SensorModel, scans, *, window: int | None = None) -> d
     if not s > 0:
         raise ValueError("the sensor model gives no position error")
     gate = 3.0
-    L = sensor.speed_max * (M - 1) * T
+    # the speed gates of the CV check hold the fit's own speed error (a least-squares
+    # velocity over M scans T apart has sigma_v = s sqrt(12 / (M (M^2 - 1))) / T)
+    sv = s * math.sqrt(12.0 / (M * (M * M - 1))) / T
+    v_lo, v_hi = max(0.0, sensor.speed_min - gate * sv), sensor.speed_max + gate * sv
+    L = v_hi * (M - 1) * T
     rho_step = 2.0 * s
     tile = 2.0 * (L + 2 * gate * s)
     if not tile < extent:
@@ -172,17 +181,17 @@ def derive_params(sensor: SensorModel, scans, *, window: int | None = None) -> d
     n_theta = int(min(720, max(16, math.ceil(math.pi * L / rho_step))))
     rho_step = _fit_grid(rho_step, tile, n_theta, x, y)
     n_theta = int(min(720, max(16, math.ceil(math.pi * L / rho_step))))
-    min_hits = min_points(sc, M=M, period=T, speed_max=sensor.speed_max, s=s, gate=gate) / M
+    min_hits = min_points(sc, M=M, period=T, speed_max=v_hi, s=s, gate=gate) / M
     confirm_n, confirm_m = (M, max(2, M - 1)) if M <= 5 else (4, 3)
     return dict(
         method="hough-sc", n_theta=n_theta, rho_step=rho_step, tile=tile,
-        vote_fraction=min(1.0, max(0.6, 4.0 / M)), parallel_fraction=0.8, q1=0.25, q2=0.3,
+        vote_fraction=min(1.0, max(0.6, 4.0 / M)), parallel_fraction=0.8, q1=0.1, q2=0.3,
         sigma=sensor.sigma_range if polar else s,
         sigma_range=sensor.sigma_range if polar else 0.0,
         sigma_azimuth=sensor.sigma_azimuth if polar else 0.0,
         radius_rho=3.0, radius_theta=4.0, squash=1.25, accept_ratio=0.5, reject_ratio=0.15,
-        merge_peaks=True, nms_size=5, verify=True, gate=gate, v_min=sensor.speed_min,
-        v_max=sensor.speed_max, min_hits=min_hits, confirm_m=confirm_m,
+        merge_peaks=True, nms_size=5, verify=True, gate=gate, v_min=v_lo,
+        v_max=v_hi, min_hits=min_hits, confirm_m=confirm_m,
         confirm_n=confirm_n, fit_confidence=0.99, window=M)
 
 
@@ -199,8 +208,8 @@ def min_points(scans, *, M: int, period: float, speed_max: float, s: float,
     (every measurement starts a chain, a second point within reach of the speed, every
     further point inside the fit's gate; C(M, n) choices of the scans; the factor 2 for
     the fit's own error). The result is the smallest n >= max(4, 0.6 M) with
-    E_n <= ``expected``, at most M (then the clutter is too dense for the sensor's
-    error: the log says so).
+    E_n <= ``expected``, at most M - 1 for M >= 6 (a track may miss one scan or have one
+    point outside its gate), else M.
     """
     sc = np.asarray(scans)
     lo = min(M, max(4, math.ceil(0.6 * M - 1e-9)))
@@ -214,10 +223,11 @@ def min_points(scans, *, M: int, period: float, speed_max: float, s: float,
     c = N / area
     pairs = N * c * math.pi * (speed_max * period + gate * s) ** 2
     p_gate = c * 2 * math.pi * (gate * s) ** 2
-    for n in range(max(2, lo), M + 1):
+    top = M - 1 if M >= 6 else M
+    for n in range(max(2, lo), top + 1):
         if pairs * p_gate ** (n - 2) * math.comb(M, n) <= expected:
             return n
-    return M
+    return max(2, lo, top)
 
 
 def _fit_grid(rho_step, tile, n_theta, x, y):
