@@ -16,7 +16,7 @@ def test_liang2015_scenario_runs_from_the_cli(tmp_path):
                  "-q"]) == 0
     assert main(["initiate", str(scans), "-o", str(out), "--window", "5", "-q"]) == 0
     res = read_results(out)
-    tracks = res["scan_tracks"]
+    tracks = res["tracks"]
     s, truth, attrs = read_scans(scans)
     assert np.isfinite(s["range"]).all()                      # polar columns kept
     times = {int(k): float(k) * attrs["period"] for k in np.unique(truth["scan"])}
@@ -32,7 +32,7 @@ def test_zhang2010_hough_sc_from_the_cli(tmp_path):
                  "--clutter-density", "0.03", "-q"]) == 0
     assert main(["initiate", str(scans), "-o", str(out), "--method", "hough-sc",
                  "--window", "10", "-q"]) == 0
-    tracks = read_results(out)["scan_tracks"]
+    tracks = read_results(out)["tracks"]
     _, truth, _ = read_scans(scans)
     sc = score_scan_tracks(tracks, truth, windows=[(0, 9)], scan_times={k: float(k) for k in
                            range(10)}, sigma=100.0)

@@ -94,8 +94,8 @@ def evaluate(results_path, truth_path=None, *, gate: float = 3.0) -> dict:
     if not math.isfinite(gate) or gate <= 0:
         raise InputError(f"--gate must be a positive number, got {gate}")
     results = read_results(results_path)
-    if "scan_tracks" in results:              # irdetect initiate on scans: scans truth
-        from irdetect.metrics.initiation import evaluate_scan_results
+    from irdetect.metrics.initiation import evaluate_scan_results, scan_tracks_of
+    if scan_tracks_of(results, warn=False) is not None:     # initiate on scans: scans truth
         return {"track initiation (scans)": evaluate_scan_results(results, truth_path)}
     truth, seq_shape = _load_truth(results, results_path, truth_path)
     attrs = results.attrs

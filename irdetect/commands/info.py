@@ -28,9 +28,15 @@ def describe(path, dataset=None) -> list[str]:
         try:
             with h5py.File(p, "r") as f:
                 is_results = dataset is None and any(name in f for name in RESULT_TABLES)
+                # a scans file (/scans, maybe /truth) is input, not results
+                is_scans = is_results and not any(n in f for n in RESULT_TABLES
+                                                  if n != "scans")
         except OSError as exc:
             raise InputError(f"corrupt or truncated HDF5 file ({str(exc).splitlines()[0]})",
                              path) from None
+        if is_scans:
+            from irdetect.io.scans import describe_scans
+            return describe_scans(path)
         if is_results:
             return _describe_results(path)
     with open_sequence(path, dataset) as src:
@@ -49,7 +55,10 @@ def describe(path, dataset=None) -> list[str]:
 
 def _describe_results(path) -> list[str]:
     res = read_results(path)
-    lines = [f"{path}: irdetect results (version {res.attrs.get('irdetect_version', '?')})"]
+    tracks = res.tables.get("tracks", res.tables.get("scan_tracks"))
+    kind = ("irdetect results of initiate on scans"
+            if tracks is not None and "scan_start" in tracks.dtype.names else "irdetect results")
+    lines = [f"{path}: {kind} (version {res.attrs.get('irdetect_version', '?')})"]
     if "input" in res.attrs:
         lines.append(f"  input {res.attrs['input']}")
     for name, table in res.tables.items():

@@ -3,9 +3,18 @@
 Methods: hough-sc (Hough + subtractive clustering, Zhang et al. 2010), hough (plain
 threshold), nms (greedy non-maximum suppression), opencv (cv2.HoughLinesPointSet),
 parallel-hough, fuzzy-parallel-hough (Liang et al. 2015), mn-logic (M-of-N logic).
-Parameters come from --config (a TOML file with an [initiate] table), else from the
-preset of the scenario named in the scans file, else the defaults; options override them.
-Writes /scan_tracks (docs/initiation.md).
+
+The sensor model is the interface: the measurement error (--sigma, or --sigma-range and
+--sigma-azimuth for a radar at the origin) and the targets' speeds (--speed MIN:MAX, the
+file's units per second), else the scans file's root attributes sigma, sigma_range,
+sigma_azimuth (rad), speed_min, speed_max, else the sigma / sigma_range / sigma_azimuth /
+v_min / v_max of --config's [initiate] table or of the preset the file names. Every grid
+parameter (rho and theta cells, tiles, thresholds, gates) is derived from it, the scan
+period and the extent of the measurements (irdetect.initiate.sensor.derive_params);
+--config's [initiate] table, then the options, override any of them. A file of a named
+scenario preset (zhang2010, liang2015) is run with the preset's tuned [initiate] table
+instead of the derivation. Units are the file's. Writes /tracks (docs/initiation.md,
+docs/format.md).
 """
 
 from __future__ import annotations
@@ -17,7 +26,7 @@ import math
 
 from irdetect.config import InitiateConfig, from_dict, read_toml
 from irdetect.errors import InputError
-from irdetect.initiate import METHODS, initiate_scans, scan_windows
+from irdetect.initiate import DEFAULTS, METHODS, initiate_scans, scan_windows
 
 log = logging.getLogger(__name__)
 
@@ -25,13 +34,24 @@ log = logging.getLogger(__name__)
 def add_arguments(p):
     p.add_argument("input", help="scans file (HDF5 with /scans: scan, time, x, y)")
     p.add_argument("-o", "--output", required=True, help="results file to write")
+    p.add_argument("--sigma", type=float, help="Cartesian measurement error per axis, in the "
+                   "file's units (default: the file's sigma attribute)")
+    p.add_argument("--sigma-range", type=float,
+                   help="polar: range error, in the file's units (default: attribute)")
+    p.add_argument("--sigma-azimuth", type=float,
+                   help="polar: azimuth error in degrees (default: the file's sigma_azimuth "
+                   "attribute, in rad)")
+    p.add_argument("--speed", metavar="MIN:MAX",
+                   help="target speeds, the file's units per second (default: the file's "
+                   "speed_min / speed_max attributes)")
     p.add_argument("--method", choices=METHODS, help="initiation method (default: hough-sc "
                    "or the scenario preset's)")
     p.add_argument("--window", type=int, default=None,
                    help="sliding window length M in scans (default: the config's "
-                   "initiate.window, 10; all scans when there are fewer)")
+                   "initiate.window, else 10; all scans when there are fewer)")
     p.add_argument("--step", type=int, default=None, help="scans between windows (default M)")
-    p.add_argument("--config", help="TOML file with an [initiate] table")
+    p.add_argument("--config", help="TOML file with an [initiate] table: overrides any "
+                   "derived parameter")
     p.add_argument("--merge-peaks", action="store_true",
                    help="merge the cells of a peak by subtractive clustering (parallel methods)")
     p.add_argument("--no-verify", action="store_true",
@@ -39,41 +59,97 @@ def add_arguments(p):
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
 
 
-def _params(args, attrs) -> dict:
-    data = {}
+def _speed(text):
+    """(min, max) of --speed MIN:MAX (or MAX alone: min 0)."""
+    if text is None:
+        return None, None
+    parts = str(text).split(":")
+    try:
+        lo, hi = (0.0, float(parts[0])) if len(parts) == 1 else (float(parts[0]),
+                                                                   float(parts[1]))
+    except ValueError:
+        raise InputError(f"--speed must be MIN:MAX (numbers), got {text!r}") from None
+    if len(parts) > 2 or not (math.isfinite(lo) and math.isfinite(hi)) or not 0 <= lo <= hi \
+            or hi <= 0:
+        raise InputError(f"--speed must be MIN:MAX with 0 <= MIN <= MAX, MAX > 0, got {text!r}")
+    return lo, hi
+
+
+def _tables(args, attrs):
+    """(preset [initiate] table or {}, --config [initiate] table or {})."""
+    preset, config = {}, {}
     if args.config:
-        data = read_toml(args.config).get("initiate", {})
+        config = read_toml(args.config).get("initiate", {})
     elif attrs.get("scenario"):
         from irdetect.simulate.presets import preset_kind
         from irdetect.simulate.scans import load_scan_scenario
-        if preset_kind(attrs["scenario"]) == "scans":
-            _, data = load_scan_scenario(attrs["scenario"])
-            log.info("initiation parameters of the %s preset", attrs["scenario"])
+        try:
+            kind = preset_kind(attrs["scenario"])
+        except InputError:
+            kind = None                        # not a preset (e.g. "custom")
+        if kind == "scans":
+            _, preset = load_scan_scenario(attrs["scenario"])
+            log.info("initiation parameters of the %s preset (not derived)",
+                     attrs["scenario"])
+    return preset, config
+
+
+def resolve(args, scans, attrs) -> tuple[dict, object]:
+    """The parameters of a run (and the sensor model): derived from the sensor model,
+    overridden by the preset's table, --config's table and the options."""
+    from irdetect.initiate.sensor import derive_params, sensor_model
+
+    preset, config = _tables(args, attrs)
+    table = {**preset, **config}
+    lo, hi = _speed(args.speed)
+    # the sensor model: options, else the file's attributes, else the tables' keys
+    fallback = {k: table[t] for k, t in (("sigma", "sigma"), ("sigma_range", "sigma_range"),
+                                         ("sigma_azimuth", "sigma_azimuth"),
+                                         ("speed_min", "v_min"), ("speed_max", "v_max"))
+                if t in table}
+    given = {"sigma": args.sigma, "sigma_range": args.sigma_range,
+             "sigma_azimuth": (math.radians(args.sigma_azimuth)
+                               if args.sigma_azimuth is not None else None),
+             "speed_min": lo, "speed_max": hi}
+    sources = {**fallback, **{k: v for k, v in attrs.items() if k in given}}
+    sensor = sensor_model(sources, path=args.input, **given)
+    n_scans = len(set(scans["scan"].tolist()))
+    window = args.window if args.window is not None else table.get("window")
+    if window is not None and window < 2 and window != 0:
+        raise InputError(f"--window must be >= 2, got {window}")
+    window = max(2, min(window or n_scans, n_scans)) if window is not None else None
+    derived = derive_params(sensor, scans, window=window)
+    # a named preset's table is the paper's tuned setting: it replaces the derivation (over
+    # the defaults, as before issue 17); --config overrides single derived parameters
+    data = {**(DEFAULTS if preset else derived), **table}
     if args.method:
         data["method"] = args.method
     if args.merge_peaks:
         data["merge_peaks"] = True
     if args.no_verify:
         data["verify"] = False
+    data["window"] = derived["window"]
     cfg = from_dict(InitiateConfig, data, where="initiate", path=args.config)
-    return dataclasses.asdict(cfg)
+    return dataclasses.asdict(cfg), sensor
 
 
 def run(args) -> int:
+    from irdetect.initiate.sensor import explain_empty
     from irdetect.io import ResultsWriter, check_output_path
     from irdetect.io.scans import read_scans
 
     check_output_path(args.output, args.force, inputs=(args.input,))
     scans, truth, attrs = read_scans(args.input)
-    params = _params(args, attrs)
-    n_scans = len(set(scans["scan"].tolist()))
-    window = params.pop("window")       # the config's M (0 = all scans)
-    window = args.window if args.window is not None else max(2, min(window or n_scans,
-                                                                     n_scans))
-    if window < 2:
-        raise InputError(f"--window must be >= 2, got {window}")
     if args.step is not None and args.step < 1:
         raise InputError(f"--step must be >= 1, got {args.step}")
+    params, sensor = resolve(args, scans, attrs)
+    n_scans = len(set(scans["scan"].tolist()))
+    window = params.pop("window")
+    log.info("sensor model: sigma %g, sigma_range %g, sigma_azimuth %g deg, speed %g-%g per s; "
+             "derived: rho cells %.4g, %d theta cells, tile %.4g, %d-scan window, "
+             "min_hits %.2f", sensor.sigma, sensor.sigma_range,
+             math.degrees(sensor.sigma_azimuth), sensor.speed_min, sensor.speed_max,
+             params["rho_step"], params["n_theta"], params["tile"], window, params["min_hits"])
     if n_scans < 2:
         log.warning("%s holds %d scan(s): a track needs at least 2; no tracks", args.input,
                     n_scans)
@@ -87,17 +163,23 @@ def run(args) -> int:
                  "windows": json.dumps(windows),
                  "scan_times": json.dumps({int(s): float(t) for s, t in
                                            zip(scans["scan"], scans["time"])})}
-    for key in ("sigma", "sigma_range", "sigma_azimuth", "period", "scenario", "max_range"):
+    for key in ("period", "scenario", "max_range"):
         if key in attrs:
             run_attrs[key] = attrs[key]
+    # the sensor model the run used (evaluate scores with it)
+    run_attrs.update(sigma=params["sigma"], speed_min=sensor.speed_min,
+                     speed_max=sensor.speed_max)
+    if params["sigma_azimuth"] > 0:
+        run_attrs.update(sigma_range=params["sigma_range"],
+                         sigma_azimuth=params["sigma_azimuth"])
     with ResultsWriter(args.output, force=args.force, attrs=run_attrs,
                        inputs=(args.input,)) as out:
-        out.write("scan_tracks", tracks)
+        out.write("tracks", tracks)
         out.write("scans", scans)
         if truth is not None:
             out.write("scan_truth", truth)
+    if not len(tracks) and n_scans >= 2:
+        log.warning("%s: %s", args.input, explain_empty({**params, "window": window}, scans))
     log.info("wrote %s: %d tracks from %d scans in %d window(s) (%s)", args.output,
              len(tracks), n_scans, len(windows), params["method"])
-    if not math.isfinite(len(tracks)):
-        return 1
     return 0

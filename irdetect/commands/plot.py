@@ -19,7 +19,8 @@ log = logging.getLogger(__name__)
 
 
 def add_arguments(p):
-    p.add_argument("results", help="results file of irdetect process")
+    p.add_argument("results", help="results file of irdetect process (or of irdetect "
+                   "initiate on scans: measurements, truth and tracks)")
     p.add_argument("-o", "--output", required=True,
                    help="figure file (.png, .jpg, .tif, .pdf or .svg)")
     p.add_argument("--sequence", help="the sequence the results were made from (default: "
@@ -54,6 +55,7 @@ def find_sequence(results, given=None):
 def run(args) -> int:
     from irdetect.commands.video import resolve_truth
     from irdetect.io import check_output_path, open_sequence, read_results
+    from irdetect.metrics.initiation import scan_tracks_of
     from irdetect.plot import require_matplotlib, plot_results, write_figure
 
     if args.scale is not None and not 0.05 <= args.scale <= 16:
@@ -63,6 +65,16 @@ def run(args) -> int:
     if not Path(args.results).exists():
         raise InputError("results file not found", args.results)
     results = read_results(args.results)
+    if scan_tracks_of(results, warn=False) is not None:    # irdetect initiate on scans
+        from irdetect.plot_scans import plot_scan_results
+        from matplotlib.figure import Figure
+
+        image = plot_scan_results(results)
+        fig = Figure(figsize=(image.shape[1] / 100, image.shape[0] / 100), dpi=100)
+        fig.figimage(image[..., ::-1])                  # BGR -> RGB, pixel for pixel
+        write_figure(args.output, fig, force=args.force, inputs=(args.results,))
+        log.info("wrote %s (scans, %dx%d px)", args.output, image.shape[1], image.shape[0])
+        return 0
     seq = find_sequence(results, args.sequence)
     if seq is None:
         log.warning("sequence %r not found beside %s; drawing over a dark background "

@@ -1,8 +1,11 @@
 """The ``/scans`` contract (shared/design/formats.md): read and write measurement scans.
 
-A scans file holds ``/scans`` (fields scan, time in s, x, y in m; optional range,
-azimuth in radians) and optionally ``/truth`` (scan, target, x, y). Root attributes
-describe the sensor (``period``, ``sigma``, ``max_range``, ``scenario``, ...).
+A scans file holds ``/scans`` (fields scan, time in s, x, y in the file's units, e.g. m or
+km; optional range, azimuth in radians) and optionally ``/truth`` (scan, target, x, y).
+Root attributes describe the sensor: the sensor model ``sigma`` (Cartesian error per
+axis), ``sigma_range``, ``sigma_azimuth`` (rad), ``speed_min``, ``speed_max`` (units per
+s) that ``irdetect initiate`` derives its parameters from, and ``period``, ``max_range``,
+``scenario``, ...
 """
 
 from __future__ import annotations
@@ -105,3 +108,25 @@ def read_scans(path: str | os.PathLike):
         truth = tables.from_columns(tables.SCAN_TRUTH, **{n: truth_raw[n]
                                                           for n in tables.SCAN_TRUTH.names})
     return scans, truth, attrs
+
+
+def describe_scans(path) -> list[str]:
+    """Human lines describing a scans file (``irdetect info``)."""
+    scans, truth, attrs = read_scans(path)
+    n_scans = len(np.unique(scans["scan"]))
+    polar = bool(scans.size) and bool(np.isfinite(scans["range"]).all())
+    lines = [f"{path}: scans file ({'polar' if polar else 'Cartesian'} measurements)",
+             f"  {len(scans)} measurements in {n_scans} scans"]
+    if scans.size:
+        lines.append(f"  time {scans['time'].min():g}..{scans['time'].max():g} s, x "
+                     f"{scans['x'].min():.4g}..{scans['x'].max():.4g}, y "
+                     f"{scans['y'].min():.4g}..{scans['y'].max():.4g}")
+    sensor = [f"{k} {attrs[k]:g}" for k in ("sigma", "sigma_range", "sigma_azimuth",
+                                             "speed_min", "speed_max")
+              if isinstance(attrs.get(k), (int, float))]
+    lines.append("  sensor model: " + (", ".join(sensor) if sensor else
+                                       "none (irdetect initiate needs --sigma and --speed)"))
+    if truth is not None:
+        lines.append(f"  truth: {len(truth)} rows, {len(np.unique(truth['target']))} "
+                     "target(s)")
+    return lines

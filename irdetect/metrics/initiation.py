@@ -301,8 +301,26 @@ def evaluate_image_tracks(results, truth, *, sigma: float | None = None,
             "pt_path": path["pt_overall"], "n_false_path": path["n_false"]}
 
 
+def scan_tracks_of(results, *, warn: bool = True):
+    """The scan tracks of an ``irdetect initiate`` results file, or None: ``/tracks``
+    with ``scan_start`` (the contract), else the deprecated ``/scan_tracks`` (files of
+    irdetect before issue 17; read for one release)."""
+    if "tracks" in results and "scan_start" in (results["tracks"].dtype.names or ()):
+        return results["tracks"]
+    if "scan_tracks" in results:
+        if not warn:
+            return results["scan_tracks"]
+        import logging
+        logging.getLogger(__name__).warning(
+            "%s: /scan_tracks is deprecated (irdetect initiate now writes /tracks); read "
+            "for one more release", results.path)
+        return results["scan_tracks"]
+    return None
+
+
 def evaluate_scan_results(results, truth_path=None) -> dict:
-    """Scores of the ``/scan_tracks`` of an ``irdetect initiate`` results file.
+    """Scores of the scan ``/tracks`` of an ``irdetect initiate`` results file
+    (``scan_tracks_of``).
 
     Truth: the scans file ``truth_path`` (its ``/truth``), else the results' own
     ``/scan_truth``, else the ``/truth`` of the input scans file. Windows, scan times and
@@ -356,7 +374,7 @@ def evaluate_scan_results(results, truth_path=None) -> dict:
             return np.maximum(float(sr), np.hypot(x, y) * float(sa))
     else:
         sigma = float(attrs.get("sigma", results.config.get("initiate", {}).get("sigma", 1.0)))
-    res = score_scan_tracks(results["scan_tracks"], truth, windows=windows,
+    res = score_scan_tracks(scan_tracks_of(results), truth, windows=windows,
                             scan_times=scan_times, sigma=sigma)
     present = res["present"].sum(axis=0)
     pt = res["initiated"].sum(axis=0) / np.maximum(present, 1)

@@ -48,6 +48,8 @@ class ScanScenario:
     azimuth_span: tuple = (0.0, 90.0)
     detection_probability: float = 1.0
     targets: tuple = ()
+    speed_min: float = 0.0          # the targets' speed range the sensor model states
+    speed_max: float = 0.0          # (units per s); 0: 0.5 x / 1.5 x the targets' speeds
 
 
 def load_scan_scenario(name: str | os.PathLike = "zhang2010", **overrides):
@@ -101,6 +103,9 @@ def _validate(s: ScanScenario, path=None):
     for row in s.targets:
         if len(row) != 4:
             raise InputError(f"every target is [x, vx, y, vy], got {row}", path)
+    if s.speed_min < 0 or s.speed_max < 0 or (s.speed_max and s.speed_min > s.speed_max):
+        raise InputError(f"need 0 <= speed_min <= speed_max, got {s.speed_min}, "
+                         f"{s.speed_max}", path)
 
 
 def simulate_scans(scenario: str | ScanScenario = "zhang2010", *,
@@ -186,4 +191,77 @@ def simulate_scans(scenario: str | ScanScenario = "zhang2010", *,
              "polar": bool(s.polar)}
     if s.polar:
         attrs.update(sigma_range=s.sigma_range, sigma_azimuth=az_sigma, max_range=s.max_range)
+    attrs.update(zip(("speed_min", "speed_max"), speed_range(s)))
     return scans, truth, attrs
+
+
+def speed_range(s: ScanScenario) -> tuple[float, float]:
+    """(speed_min, speed_max) of the sensor model: the scenario's, else 0.5 x the slowest
+    and 1.5 x the fastest target's speed (units per s)."""
+    if s.speed_max > 0:
+        return float(s.speed_min), float(s.speed_max)
+    v = np.hypot(*np.asarray(s.targets, float).reshape(-1, 4)[:, [1, 3]].T)
+    return (0.5 * float(v.min()), 1.5 * float(v.max())) if v.size else (0.0, 0.0)
+
+
+def random_scenario(rng: np.random.Generator | int | None = None, *, polar: bool = False,
+                    n_scans: int = 10, clutter: str = "region") -> ScanScenario:
+    """A random scans scene of any scale (the benchmark of issue 17).
+
+    Region side E log-uniform in [10, 500] units (the file's units: km, m, anything);
+    position error sigma uniform in [0.1, 2] % of E (polar: sigma_range so, sigma_azimuth
+    = sigma_range / (E / 2) x U(0.5, 2), a cross-range error comparable to the range error
+    at mid-range); 2-10 CV targets, period T uniform in [1, 5] s, speeds uniform in
+    [speed_min, speed_max] with speed_max T uniform in [0.3, 3] % of E (zhang2010 0.3 %,
+    liang2015 2.5 %) and speed_min = speed_max / 4, started so they stay in the region
+    (polar: mid-window at 30-90 % of the range, azimuth 10-80 degrees); clutter density lambda uniform in [0, 0.1] per scaled unit^2,
+    the region being 120 scaled units on a side as zhang2010's 120 km: a Poisson count of
+    mean lambda x 120^2 x (area / E^2) per scan, uniform over the region (0 to 1,440 per
+    scan over the square, as zhang2010 at lambda 0 to 0.1). ``clutter="sigma"`` scales
+    the clutter to the sensor instead: lambda uniform in [0, 0.001] per sigma^2 per scan
+    (zhang2010's lambda 0 to 0.1 per km^2 at sigma = 100 m), a mean count of
+    lambda x area / sigma^2.
+
+    Returns
+    -------
+    ScanScenario
+        With ``speed_min``, ``speed_max`` set (the sensor model's speed range).
+    """
+    rng = np.random.default_rng(rng)
+    E = float(np.exp(rng.uniform(np.log(10.0), np.log(500.0))))
+    sigma = float(rng.uniform(0.001, 0.02)) * E
+    T = float(rng.uniform(1.0, 5.0))
+    vmax = float(rng.uniform(0.003, 0.03)) * E / T
+    vmin = vmax / 4
+    lam = float(rng.uniform(0.0, 0.1))
+    if clutter not in ("region", "sigma"):
+        raise ValueError(f"clutter must be 'region' or 'sigma', got {clutter!r}")
+    # mean clutter count per scan over the square E x E
+    count = lam * 120**2 if clutter == "region" else lam / 100 * E * E / sigma**2
+    J = int(rng.integers(2, 11))
+    speed = rng.uniform(vmin, vmax, J)
+    heading = rng.uniform(0, 2 * np.pi, J)
+    vx, vy = speed * np.cos(heading), speed * np.sin(heading)
+    dur = (n_scans - 1) * T
+    if polar:
+        r0 = rng.uniform(0.3, 0.9, J) * E
+        b0 = np.radians(rng.uniform(10, 80, J))
+        mid_x, mid_y = r0 * np.cos(b0), r0 * np.sin(b0)
+        x0, y0 = mid_x - vx * dur / 2, mid_y - vy * dur / 2
+        sr = sigma
+        sa = math.degrees(sr / (E / 2) * float(rng.uniform(0.5, 2.0)))
+        return ScanScenario(n_scans=n_scans, period=T, region=(0.0, E, 0.0, E), polar=True,
+                            sigma=sr, sigma_range=sr, sigma_azimuth=sa, max_range=E,
+                            azimuth_span=(0.0, 90.0), clutter_mean=count * np.pi / 4,
+                            targets=tuple(zip(x0, vx, y0, vy)), speed_min=vmin,
+                            speed_max=vmax)
+    lo, hi = 0.05 * E + np.abs(vx) * dur, 0.95 * E - np.abs(vx) * dur
+    x0 = np.where(vx > 0, rng.uniform(0.05 * E, np.maximum(0.05 * E, hi)),
+                  rng.uniform(np.minimum(lo, 0.95 * E), 0.95 * E))
+    lo, hi = 0.05 * E + np.abs(vy) * dur, 0.95 * E - np.abs(vy) * dur
+    y0 = np.where(vy > 0, rng.uniform(0.05 * E, np.maximum(0.05 * E, hi)),
+                  rng.uniform(np.minimum(lo, 0.95 * E), 0.95 * E))
+    return ScanScenario(n_scans=n_scans, period=T, region=(0.0, E, 0.0, E), sigma=sigma,
+                        clutter_mean=count,
+                        clutter_density=0.0, targets=tuple(zip(x0, vx, y0, vy)),
+                        speed_min=vmin, speed_max=vmax)
