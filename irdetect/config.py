@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import os
 import tomllib
 import typing
@@ -160,8 +159,9 @@ class TrackConfig:
     min_contrast: float = 0.0
     min_area: float = 2.0
     max_area: float = 200.0
-    min_grey: float = -math.inf
-    max_grey: float = math.inf
+    grey_gate: bool = False
+    min_grey: float = 100.0
+    max_grey: float = 180.0
     max_regions: int = 200
     frame_interval: float = 1.0
     q0: float = 0.001

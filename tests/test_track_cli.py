@@ -100,4 +100,4 @@ def test_paper_profile_keeps_the_papers_gates(tmp_path):
     assert main(["track", str(tmp_path / "b.h5"), "-o", str(tmp_path / "p.h5"), "-q",
                  "--profile", "paper"]) == 0
     res = read_results(tmp_path / "p.h5")
-    assert len(res["tracks"]) == 0 and res.config["track"]["min_grey"] == 100.0
+    assert len(res["tracks"]) == 0 and res.config["track"]["grey_gate"]

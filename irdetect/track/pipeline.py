@@ -22,7 +22,8 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
           method: str = "fcm-pmht", sea_sky: bool = False, band_above: float = 5.0,
           band_below: float = 40.0, suppress_size: int = 15, k: float = 4.0,
           min_contrast: float = 0.0, min_area: float = 2.0, max_area: float = 200.0,
-          min_grey: float = -np.inf, max_grey: float = np.inf, max_regions: int = 200,
+          grey_gate: bool = False, min_grey: float = 100.0, max_grey: float = 180.0,
+          max_regions: int = 200,
           frame_interval: float = 1.0, q0: float = 1e-3, r: float = 0.5,
           adaptive: bool = True, beta: float = 0.9, m: float = 2.0, gate: float = 4.0,
           w_position: float = 1.0, w_grey: float = 1.0, w_area: float = 1.0,
@@ -51,7 +52,8 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
         pixels above it to ``band_below`` pixels below it (maritime scenes; off for sky or
         ground scenes). A frame without a detectable horizon is searched whole.
     suppress_size, k, min_contrast, min_area, max_area, min_grey, max_grey, max_regions
-        Region extraction, see :func:`irdetect.track.regions.extract_regions`. Regions up to
+        Region extraction, see :func:`irdetect.track.regions.extract_regions`; the grey
+        interval [min_grey, max_grey] applies only with ``grey_gate`` (the paper's). Regions up to
         2 x ``max_area`` are kept, because two merged targets make one region of up to twice
         the area; those larger than ``max_area`` feed existing tracks but start none. The
         defaults hold for any dtype, background and noise level: the threshold is 4
@@ -117,8 +119,9 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
             area_scale=area_scale, direction_after=direction_after, min_speed=min_speed,
             max_merged=max_merged, merge_margin=merge_margin, **common)
     region_kw = dict(suppress_size=suppress_size, k=k, min_contrast=min_contrast,
-                     min_area=min_area, max_area=2 * max_area, min_grey=min_grey,
-                     max_grey=max_grey, max_regions=max_regions)
+                     min_area=min_area, max_area=2 * max_area,
+                     min_grey=min_grey if grey_gate else -np.inf,
+                     max_grey=max_grey if grey_gate else np.inf, max_regions=max_regions)
     if sea_sky and (band_above < 0 or band_below < 0):
         raise ValueError(f"band_above and band_below must be >= 0, got "
                          f"{band_above!r}, {band_below!r}")
