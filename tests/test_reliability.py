@@ -509,3 +509,19 @@ def test_random_config_values(tmp_path, stage, value):
             check_config(load_config(path), path, frame_shape=(64, 64))
         except InputError:
             pass
+
+
+def test_initiate_refuses_a_window_of_a_million_points(work, run):
+    """1e6 clutter points ran past 900 s at 5.5 GB: refused up front, with the reason."""
+    from irdetect import tables
+    from irdetect.io.scans import write_scans
+
+    r = np.random.default_rng(0)
+    scan = np.sort(r.integers(0, 10, 1_000_000))
+    rows = tables.from_columns(tables.SCAN, scan=scan, time=scan * 5.0,
+                               x=r.uniform(0, 1e5, scan.size), y=r.uniform(0, 1e5, scan.size))
+    write_scans(work / "dense.h5", rows, attrs={"sigma": 100.0, "speed_min": 30.0,
+                                                 "speed_max": 350.0, "period": 5.0})
+    t = time.perf_counter()
+    run("initiate", "dense.h5", "-o", "t.h5", want=(2,), names="measurements")
+    assert time.perf_counter() - t < 60 and not (work / "t.h5").exists()
