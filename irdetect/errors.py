@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import resource
 import stat
 from contextlib import contextmanager
 
@@ -29,13 +30,43 @@ def refused_settings(path: str | os.PathLike | None = None):
     """Turn the ValueError a stage raises on a parameter into an InputError naming the
     configuration file ``path``: wrap a dry run of the stages on blank input with it, so
     a bad value fails before a run instead of a traceback in the middle of one."""
+    import cv2
+
     try:
-        yield
+        with _memory_cap(DRY_RUN_BYTES):
+            yield
     except ValueError as exc:
         raise InputError(f"bad configuration value: {exc}", path) from None
-    except MemoryError:
-        raise InputError("a configuration value asks for more memory than there is",
-                         path) from None
+    except (MemoryError, cv2.error):
+        raise InputError("a configuration value asks for more memory than a run on blank "
+                         f"32 x 32 frames may take ({DRY_RUN_BYTES >> 30} GiB)", path) from None
+
+
+#: address space the dry run of the settings may add (it runs on 32 x 32 frames: a value
+#: that wants more would take far more on real frames; with overcommit such allocations
+#: succeed and the kernel kills the process later instead of raising MemoryError)
+DRY_RUN_BYTES = 2 << 30
+
+
+@contextmanager
+def _memory_cap(extra: int):
+    """Lower the soft RLIMIT_AS to the current address space + ``extra`` for the block."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    try:
+        with open("/proc/self/statm") as fh:
+            used = int(fh.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+    except OSError:             # not Linux: no cap
+        used = None
+    cap = None if used is None else used + extra
+    if cap is None or (soft != resource.RLIM_INFINITY and soft <= cap) or \
+            (hard != resource.RLIM_INFINITY and hard < cap):
+        yield
+        return
+    resource.setrlimit(resource.RLIMIT_AS, (cap, hard))
+    try:
+        yield
+    finally:
+        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
 
 
 def check_input_file(path: str | os.PathLike, what: str = "file") -> None:

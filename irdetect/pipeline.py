@@ -53,6 +53,10 @@ MIN_LENGTH = 4
 #: the largest integer setting (a size in px or frames: a combined frame's length, a
 #: window, a tile) a configuration may give; 1000 frames already smear any moving target
 MAX_LENGTH = 1000
+#: the largest magnitude of a real-valued setting, and 1 / it the smallest but 0
+#: (thresholds, sigmas, speeds: beyond any; float32 maps overflow near 3e38 and a cell of
+#: 1e-236 px overflowed the Minkowski distance)
+MAX_SETTING = 1e9
 #: frames narrower or lower than this are refused (``check_frames``)
 MIN_SIDE = 8
 #: memory per pixel of a window's frames a run holds at once, with margin: raw and float
@@ -484,6 +488,11 @@ def check_config(config: ProcessConfig, path=None, frame_shape=(32, 32)) -> None
                     and abs(value) > MAX_LENGTH and field.name != "n_theta"):
                 raise InputError(f"{stage.name}.{field.name} = {value}: integer settings (sizes "
                                  f"in px or frames) lie within +-{MAX_LENGTH}", path)
+            if isinstance(value, float) and not (value == 0 or 1 / MAX_SETTING <= abs(value)
+                                                 <= MAX_SETTING):
+                raise InputError(f"{stage.name}.{field.name} = {value}: real settings are 0 or "
+                                 f"finite numbers of magnitude {1 / MAX_SETTING:g} to "
+                                 f"{MAX_SETTING:g}", path)
     h, w = frame_shape
     corners = tables.from_columns(
         tables.DETECTION, x=[0.0, w - 1.0, 0.0, w - 1.0], y=[0.0, 0.0, h - 1.0, h - 1.0],

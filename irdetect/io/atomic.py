@@ -28,6 +28,7 @@ import io
 import os
 import shutil
 import stat
+import sys
 import tempfile
 import threading
 from contextlib import contextmanager
@@ -79,6 +80,40 @@ def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
         return False
 
 
+def check_output_place(path: Path, inputs=()) -> None:
+    """The output's folder exists and is writable, and ``path`` is none of ``inputs``.
+
+    Raises
+    ------
+    InputError
+        Naming ``path``.
+    """
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise InputError(f"output folder {str(folder)!r} does not exist", path)
+    if not os.access(folder, os.W_OK):
+        raise InputError(f"output folder {str(folder)!r} is not writable", path)
+    for source in inputs:
+        if source is not None and same_file(source, path):
+            raise InputError(f"the output is the input {os.fspath(source)!r}; give another "
+                             "output name", path)
+
+
+def leave(output, exc_info, close) -> bool:
+    """Leave a writer: ``close(ok)`` (ok: the block succeeded), then the ``atomic_output``
+    context ``output``, which commits or removes the temporary; an error of ``close``
+    becomes the block's error. Returns what ``__exit__`` returns."""
+    exc_type, exc, tb = exc_info
+    try:
+        close(exc_type is None)
+    except BaseException:
+        if exc_type is None:
+            exc_type, exc, tb = sys.exc_info()
+        output.__exit__(exc_type, exc, tb)
+        raise
+    return output.__exit__(exc_type, exc, tb)
+
+
 def check_output_path(path: str | os.PathLike, force: bool = False,
                       inputs=()) -> Path:
     """Check that ``path`` can be written before any work is done.
@@ -99,15 +134,7 @@ def check_output_path(path: str | os.PathLike, force: bool = False,
         regular file, or it exists and ``force`` is False.
     """
     path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    if not folder.is_dir():
-        raise InputError(f"output folder {str(folder)!r} does not exist", path)
-    if not os.access(folder, os.W_OK):
-        raise InputError(f"output folder {str(folder)!r} is not writable", path)
-    for source in inputs:
-        if source is not None and same_file(source, path):
-            raise InputError(f"the output is the input {os.fspath(source)!r}; give another "
-                             "output name", path)
+    check_output_place(path, inputs)
     if path.is_dir():
         raise InputError("output path is a folder", path)
     if path.exists() and not stat.S_ISREG(os.stat(path).st_mode):

@@ -20,7 +20,7 @@ import numpy as np
 from irdetect import __version__, tables
 from irdetect.errors import InputError, check_input_file
 from irdetect.io.atomic import (GuardedFile, atomic_output, check_output_path,
-                                deferred_signals, interrupted)
+                                deferred_signals, interrupted, leave)
 
 
 class AtomicH5:
@@ -72,20 +72,16 @@ class AtomicH5:
         self._guard.check()
 
     def __exit__(self, exc_type, exc, tb):
+        return leave(self._output, (exc_type, exc, tb), self._close)
+
+    def _close(self, ok: bool) -> None:
         try:
-            try:
-                self.file.close()
-                self._guard.close()
-            finally:
-                self._deferred.__exit__(None, None, None)
-            if exc_type is None:
-                self.check()
-        except BaseException:
-            if exc_type is None:
-                exc_type, exc, tb = sys.exc_info()
-            self._output.__exit__(exc_type, exc, tb)
-            raise
-        return self._output.__exit__(exc_type, exc, tb)
+            self.file.close()
+            self._guard.close()
+        finally:
+            self._deferred.__exit__(None, None, None)
+        if ok:
+            self.check()
 
 
 class ResultsWriter(AtomicH5):

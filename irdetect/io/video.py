@@ -12,14 +12,13 @@ only with ``force=True``.
 from __future__ import annotations
 
 import os
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from irdetect.errors import InputError
-from irdetect.io.atomic import atomic_output, check_output_path, same_file
+from irdetect.io.atomic import atomic_output, check_output_path, check_output_place, leave
 
 #: suffix -> fourcc of the OpenCV video writer
 CODECS = {".mp4": "mp4v", ".avi": "MJPG"}
@@ -60,15 +59,7 @@ def check_video_path(path: str | os.PathLike, force: bool = False,
     """
     kind = output_kind(path)
     p = Path(os.fspath(path).rstrip("/" + os.sep) or ".")
-    parent = p.parent if str(p.parent) else Path(".")
-    if not parent.is_dir():
-        raise InputError(f"output folder {str(parent)!r} does not exist", path)
-    if not os.access(parent, os.W_OK):
-        raise InputError(f"output folder {str(parent)!r} is not writable", path)
-    for source in inputs:
-        if source is not None and same_file(source, p):
-            raise InputError(f"the output is the input {os.fspath(source)!r}; give another "
-                             "output name", path)
+    check_output_place(p, inputs)
     if kind == "png":
         if p.exists() and not p.is_dir():
             raise InputError("a PNG-frame output must be a folder, but this is a file", path)
@@ -175,17 +166,12 @@ class VideoWriter:
         self._writer = writer
 
     def __exit__(self, exc_type, exc, tb):
-        try:
-            if self._writer is not None:
-                self._writer.release()
-            if exc_type is None:
-                if self.count == 0:
-                    raise InputError("no frames to write", self.path)
-                if self.kind != "png" and os.path.getsize(self._tmp) == 0:
-                    raise InputError("the video encoder wrote nothing (disk full?)", self.path)
-        except BaseException:
-            if exc_type is None:
-                exc_type, exc, tb = sys.exc_info()
-            self._output.__exit__(exc_type, exc, tb)
-            raise
-        return self._output.__exit__(exc_type, exc, tb)
+        return leave(self._output, (exc_type, exc, tb), self._close)
+
+    def _close(self, ok: bool) -> None:
+        if self._writer is not None:
+            self._writer.release()
+        if ok and self.count == 0:
+            raise InputError("no frames to write", self.path)
+        if ok and self.kind != "png" and os.path.getsize(self._tmp) == 0:
+            raise InputError("the video encoder wrote nothing (disk full?)", self.path)
