@@ -150,11 +150,12 @@ def export_results(results, folder: str | os.PathLike, fmt: str, *, box: float =
         csv / mot of results without detections or image tracks.
     """
     paths = export_files(folder, fmt)
-    if fmt != "json" and not any(name in results for name in ("detections", "tracks",
-                                                               "track_points")):
+    from irdetect.metrics.initiation import scan_tracks_of
+
+    if fmt != "json" and (scan_tracks_of(results, warn=False) is not None or not any(
+            name in results for name in ("detections", "tracks", "track_points"))):
         raise InputError("holds no detections or image tracks (results of irdetect "
-                         "initiate? their /scan_tracks go out with --format json)",
-                         results.path)
+                         "initiate on scans go out with --format json)", results.path)
     folder = Path(folder)
     if not folder.is_dir():
         check_output_path(folder, force=False)                 # the parent must exist

@@ -105,10 +105,13 @@ def test_csv_and_json_hold_every_table(processed, cli, tmp_path):
     assert not [n for n in os.listdir(tmp_path / "out") if n.startswith(".")]
     code, _, err = cli("export", "missing.h5", "--format", "csv", "-o", "out2")
     assert code == 2 and "missing.h5" in err and not (tmp_path / "out2").exists()
-    with ResultsWriter(tmp_path / "scans_res.h5") as out:           # irdetect initiate's
-        out.write("scan_tracks", np.zeros(0, [("track_id", "<i8"), ("x", "<f8")]))
-    code, _, err = cli("export", "scans_res.h5", "--format", "mot", "-o", "out3")
-    assert code == 2 and "--format json" in err and not (tmp_path / "out3").exists()
+    from irdetect import tables
+    for name, table in (("tracks", tables.empty(tables.SCAN_TRACK)),    # irdetect initiate's
+                        ("scan_tracks", np.zeros(0, [("track_id", "<i8"), ("x", "<f8")]))):
+        with ResultsWriter(tmp_path / f"{name}.h5") as out:
+            out.write(name, table)
+        code, _, err = cli("export", f"{name}.h5", "--format", "mot", "-o", "out3")
+        assert code == 2 and "--format json" in err and not (tmp_path / "out3").exists()
 
 
 def test_read_results_gives_dataframes_when_pandas_is_there(processed, monkeypatch):
