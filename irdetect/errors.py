@@ -50,7 +50,16 @@ DRY_RUN_BYTES = 2 << 30
 
 @contextmanager
 def _memory_cap(extra: int):
-    """Lower the soft RLIMIT_AS to the current address space + ``extra`` for the block."""
+    """Lower the soft RLIMIT_AS to the current address space + ``extra`` for the block.
+
+    Only while this is the process's only Python thread: the limit is the process's, and
+    another thread's allocation must not fail for it (a Dask worker running tasks side by
+    side, a caller's thread pool); there the dry run runs uncapped."""
+    import threading
+
+    if threading.active_count() > 1:
+        yield
+        return
     soft, hard = resource.getrlimit(resource.RLIMIT_AS)
     try:
         with open("/proc/self/statm") as fh:
