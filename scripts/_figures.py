@@ -11,6 +11,22 @@ import sys
 from pathlib import Path
 
 
+def _panels(path, n: int, width: float, height: float):
+    """(figure, axes) of ``n`` panels side by side, or None (said on stderr) without
+    matplotlib."""
+    from irdetect.errors import InputError
+    from irdetect.plot import require_matplotlib
+
+    try:
+        Figure, Canvas = require_matplotlib()
+    except InputError as exc:
+        print(f"no figure {path}: {exc}", file=sys.stderr)
+        return None
+    fig = Figure(figsize=(width * n, height), dpi=100, layout="constrained")
+    Canvas(fig)
+    return fig, fig.subplots(1, n, squeeze=False)[0]
+
+
 def save_curves(path, panels, *, title: str | None = None, width: float = 6.0,
                 height: float = 4.0) -> Path | None:
     """Write one PNG of line panels side by side.
@@ -31,17 +47,12 @@ def save_curves(path, panels, *, title: str | None = None, width: float = 6.0,
     Path or None
         The file written; None when matplotlib is missing.
     """
-    from irdetect.errors import InputError
-    from irdetect.plot import require_matplotlib, write_figure
+    from irdetect.plot import write_figure
 
-    try:
-        Figure, Canvas = require_matplotlib()
-    except InputError as exc:
-        print(f"no figure {path}: {exc}", file=sys.stderr)
+    made = _panels(path, len(panels), width, height)
+    if made is None:
         return None
-    fig = Figure(figsize=(width * len(panels), height), dpi=100, layout="constrained")
-    Canvas(fig)
-    axes = fig.subplots(1, len(panels), squeeze=False)[0]
+    fig, axes = made
     for ax, panel in zip(axes, panels):
         for s in panel["series"]:
             style = {k: s[k] for k in ("ls", "marker", "color", "mfc", "lw") if k in s}
@@ -86,17 +97,12 @@ def save_bars(path, panels, *, title: str | None = None, width: float = 6.0,
     """
     import numpy as np
 
-    from irdetect.errors import InputError
-    from irdetect.plot import require_matplotlib, write_figure
+    from irdetect.plot import write_figure
 
-    try:
-        Figure, Canvas = require_matplotlib()
-    except InputError as exc:
-        print(f"no figure {path}: {exc}", file=sys.stderr)
+    made = _panels(path, len(panels), width, height)
+    if made is None:
         return None
-    fig = Figure(figsize=(width * len(panels), height), dpi=100, layout="constrained")
-    Canvas(fig)
-    axes = fig.subplots(1, len(panels), squeeze=False)[0]
+    fig, axes = made
     for ax, panel in zip(axes, panels):
         x = np.arange(len(panel["categories"]))
         n = max(1, len(panel["groups"]))
