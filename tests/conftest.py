@@ -1,7 +1,5 @@
-import os
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -29,15 +27,3 @@ def cli(tmp_path, monkeypatch, capsys):
         return code, out.out, out.err
 
     return run
-
-
-@pytest.fixture
-def small_seq(tmp_path):
-    """A short simulated sequence written to HDF5: (path, frames, truth)."""
-    from irdetect.io import write_sequence
-    from irdetect.simulate import simulate
-
-    frames, truth = simulate("wan2008", rng=3, n_frames=12, height=40, width=50, n_targets=1)
-    path = tmp_path / "seq.h5"
-    write_sequence(path, frames, truth=truth, attrs={"frame_rate": 25.0})
-    return path, frames, truth

@@ -108,3 +108,14 @@ def test_a_panning_shaking_camera_moves_the_scene_but_not_the_hot_pixels():
 def test_camera_options_are_checked():
     with pytest.raises(InputError, match="camera_jitter"):
         load_scenario("wan2008", camera_jitter=-1.0)
+
+
+def test_a_new_target_count_takes_the_presets_first_directions():
+    """--targets N on a preset with directions for its own 5 targets: the first N of them
+    (N <= 5) or random ones (N > 5); it used to fail unless N was 5."""
+    from irdetect.simulate.sequence import load_scenario
+
+    assert load_scenario("wan2008", n_targets=3).directions == (0.0, 72.0, 144.0)
+    assert load_scenario("wan2008", n_targets=8).directions == ()
+    assert load_scenario("wan2008", n_targets=2, directions=[10.0, 20.0]).directions == \
+        (10.0, 20.0)
