@@ -25,7 +25,7 @@ import sys  # noqa: E402
 
 from irdetect import __version__  # noqa: E402
 from irdetect.errors import InputError  # noqa: E402
-from irdetect.io.atomic import interrupted, on_signal, received  # noqa: E402
+from irdetect.io.atomic import on_signal, received  # noqa: E402
 
 #: errors of writing a file that are the user's to fix, not irdetect's bugs
 WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EACCES, errno.EPERM,
@@ -70,7 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
         p = sub.add_parser(name, parents=[common], help=help_text,
                            description=(module.__doc__ or help_text).strip())
         module.add_arguments(p)
-        p.set_defaults(run=module.run)
+        p.set_defaults(run=module.run, parser=p)
     return parser
 
 
@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
     SIGINT / SIGTERM)."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    _check_finite(parser, args)
+    _check_finite(args)
     level = logging.ERROR if args.quiet else logging.DEBUG if args.verbose else logging.INFO
     logging.basicConfig(level=level, format="irdetect: %(message)s", stream=sys.stderr)
     if args.verbose:            # the libraries' warnings too
@@ -90,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     saved = _catch_signals()
     try:
         code = int(args.run(args) or 0)
-        if interrupted.is_set():       # a library swallowed the signal's exception
+        if received:                   # a library swallowed the signal's exception
             raise KeyboardInterrupt
         return code
     except InputError as exc:
@@ -115,9 +115,9 @@ def main(argv: list[str] | None = None) -> int:
         _restore_signals(saved)
 
 
-def _check_finite(parser: argparse.ArgumentParser, args) -> None:
+def _check_finite(args) -> None:
     """Refuse NaN and inf in every numeric option (argparse's float() accepts them)."""
-    sub = parser._subparsers._group_actions[0].choices[args.command]
+    sub = args.parser
     for action in sub._actions:
         value = getattr(args, action.dest, None)
         values = value if isinstance(value, (list, tuple)) else [value]
@@ -135,7 +135,6 @@ def _catch_signals() -> dict:
     """SIGINT and SIGTERM go to ``irdetect.io.atomic.on_signal``: ``KeyboardInterrupt``
     in the main thread, so every writer removes its temporary, and a flag, so nothing is
     committed even when a library swallowed the exception. Returns what to restore."""
-    interrupted.clear()
     received.clear()
     saved = {"handlers": {}, "unraisable": sys.unraisablehook}
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -147,7 +146,7 @@ def _catch_signals() -> dict:
     def unraisable(info):
         # the signal's exception raised inside a weakref callback or __del__ cannot
         # propagate; the flag stops the run, so it is not worth a traceback
-        if not (interrupted.is_set() and issubclass(info.exc_type, KeyboardInterrupt)):
+        if not (received and issubclass(info.exc_type, KeyboardInterrupt)):
             saved["unraisable"](info)
 
     sys.unraisablehook = unraisable

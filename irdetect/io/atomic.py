@@ -30,7 +30,6 @@ import shutil
 import stat
 import sys
 import tempfile
-import threading
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -39,10 +38,8 @@ from irdetect.errors import InputError
 LOCK_SUFFIX = ".irdetect-lock"
 TEMP_TAG = ".irdetect-"
 
-#: set when SIGINT or SIGTERM arrived (``on_signal``); no output is committed after that,
-#: even when the signal's exception was swallowed by a library callback
-interrupted = threading.Event()
-#: the number of the first signal that arrived
+#: the SIGINT / SIGTERM that arrived (``on_signal``), first first; no output is committed
+#: after one, even when the signal's exception was swallowed by a library callback
 received: list[int] = []
 #: HDF5 writers open: the signal's exception must not be raised inside the library's
 #: callbacks into GuardedFile, so they raise it themselves at their next block
@@ -53,9 +50,7 @@ def on_signal(signum, frame) -> None:
     """The SIGINT / SIGTERM handler ``irdetect.cli`` installs: note the signal and raise
     ``KeyboardInterrupt``, or, while an HDF5 writer is open, leave that to its next
     ``check`` (after each block it writes: within milliseconds)."""
-    if not received:
-        received.append(signum)
-    interrupted.set()
+    received.append(signum)
     if not _deferring:
         raise KeyboardInterrupt
 
@@ -237,7 +232,7 @@ def atomic_output(path: str | os.PathLike, *, force: bool = False, inputs=(),
                 from None
         try:
             yield tmp
-            if interrupted.is_set():
+            if received:
                 raise KeyboardInterrupt
             for source in inputs:
                 if source is not None and same_file(source, path):

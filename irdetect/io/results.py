@@ -20,7 +20,7 @@ import numpy as np
 from irdetect import __version__, tables
 from irdetect.errors import InputError, check_input_file
 from irdetect.io.atomic import (GuardedFile, atomic_output, check_output_path,
-                                deferred_signals, interrupted, leave)
+                                deferred_signals, leave, received)
 
 
 class AtomicH5:
@@ -67,7 +67,7 @@ class AtomicH5:
     def check(self) -> None:
         """Raise the first write error (disk full, ...) as an ``InputError`` now, or
         ``KeyboardInterrupt`` when SIGINT / SIGTERM arrived and a library swallowed it."""
-        if interrupted.is_set():
+        if received:
             raise KeyboardInterrupt
         self._guard.check()
 
