@@ -32,13 +32,13 @@ from irdetect import tables
 from irdetect.camera import CameraMotion
 from irdetect.combine import combine, frames_needed, window_starts
 from irdetect.config import ProcessConfig, to_json
-from irdetect.correlate import (DP_LEADS, Correlation, Evidence, correlate, matched_frame,
-                                noise_level, standardise)
+from irdetect.correlate import Correlation, correlate
 from irdetect.detect import detect
 from irdetect.errors import InputError, refused_settings
 from irdetect.fuse import fuse
 from irdetect.io.sources import FrameSource
 from irdetect.suppress import future_frames, past_frames, suppress
+from irdetect.verify import DP_LEADS, Evidence, matched_frame, noise_level, standardise
 
 log = logging.getLogger(__name__)
 

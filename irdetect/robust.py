@@ -1,6 +1,6 @@
 """Robust statistics shared by the stages: median, MAD sigma, and per-tile estimates.
 
-The CFAR steps of irdetect (``irdetect.detect``, ``irdetect.correlate.standardise``,
+The CFAR steps of irdetect (``irdetect.detect``, ``irdetect.verify.standardise``,
 ``irdetect.suppress.noise_sigma``) measure a robust location and scale per tile of a frame
 and interpolate between tile centres. The tiling here takes any frame size: a side of
 ``n`` px is cut into ``max(1, n // tile)`` tiles of ``n // (n // tile)`` px (the last

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-import irdetect.correlate as correlate_module
+import irdetect.verify as verify_module
 from irdetect.config import ProcessConfig
 from irdetect.pipeline import process_file
 from irdetect.profiles import load_profile
@@ -47,12 +47,12 @@ SCENES = (("wan2008 SNR 2", "wan2008", 2.0, 0), ("wan2008 SNR 3", "wan2008", 3.0
 
 
 class RefineCounter:
-    """Wraps ``correlate.track_significance`` to count the chains it gets, and its hill
-    climb (``correlate._climb``) to count those it refines (whose coarse statistic
+    """Wraps ``verify.track_significance`` to count the chains it gets, and its hill
+    climb (``verify._climb``) to count those it refines (whose coarse statistic
     passed the screen: the rows of any round)."""
 
     def __init__(self):
-        self.originals = correlate_module.track_significance, correlate_module._climb
+        self.originals = verify_module.track_significance, verify_module._climb
         self.chains = self.refined = 0
         self._rows: set = set()
 
@@ -68,11 +68,11 @@ class RefineCounter:
         return self.originals[1](frames, dts, rows, *args)
 
     def __enter__(self):
-        correlate_module.track_significance, correlate_module._climb = self, self._climb
+        verify_module.track_significance, verify_module._climb = self, self._climb
         return self
 
     def __exit__(self, *exc):
-        correlate_module.track_significance, correlate_module._climb = self.originals
+        verify_module.track_significance, verify_module._climb = self.originals
 
 
 def run_file(seq: Path, out: Path, config: ProcessConfig) -> dict:

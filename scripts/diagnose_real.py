@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 
 import irdetect.pipeline as pipeline
-from irdetect import correlate as corr_mod
+from irdetect import verify as verify_mod
 from irdetect.combine import window_starts
 from irdetect.config import ProcessConfig, load_config
 from irdetect.metrics.detection import path_distance
@@ -61,9 +61,9 @@ class Recorder:
         if evidence is not None and len(loose.index):
             pts = np.stack([np.column_stack([t["x"], t["y"]])[loose.index[:, i]]
                             for i, t in enumerate((p1, p2, p3))], axis=1)
-            z, c, v = corr_mod.track_significance(evidence, pts)
-            ring = corr_mod.ring_significance(evidence, c, v)
-            local = corr_mod.local_significance(evidence, c, v, z)
+            z, c, v = verify_mod.track_significance(evidence, pts)
+            ring = verify_mod.ring_significance(evidence, c, v)
+            local = verify_mod.local_significance(evidence, c, v, z)
             tm = float(np.mean(evidence.index))
             chains = [(loose.index[i], z[i], ring[i], local[i], c[i], v[i],
                        tm) for i in range(len(z))]
@@ -139,7 +139,7 @@ def diagnose(name, cfg, residual=False):
             z, ring, local, t = max(chains)
             print(f"  window {k} (frames {s}-{s + length - 1}): MISSED, not verified: best "
                   f"chain (triple {t}) z {z:.1f} (verify {cfg.correlate.verify}), ring "
-                  f"{ring:.2f} (max {corr_mod.RING_RATIO}), local z {local:.1f} "
+                  f"{ring:.2f} (max {verify_mod.RING_RATIO}), local z {local:.1f} "
                   f"(verify_local {cfg.correlate.verify_local})")
 
 

@@ -76,7 +76,7 @@ def test_bad_parameters_are_named(kwargs, name):
 
 def _faint_target_evidence(seed, snr=2.0, psf=0.6, noise=4.0, v=(0.8, -0.6)):
     """36 noise frames with one Gaussian point moving at v px/frame; its true track."""
-    from irdetect.correlate import Evidence, matched_frame, noise_level, standardise
+    from irdetect.verify import Evidence, matched_frame, noise_level, standardise
 
     rng = np.random.default_rng(seed)
     h, w = 64, 96
@@ -120,7 +120,7 @@ def test_verification_climbs_to_the_track_from_a_poor_fit(seed):
     # 3 points whose line is 1.6 px and 0.13 px/frame off the target's track (at the
     # ends of 36 frames: 2.3 px more): the hill climb reaches the track; one 3 x 3 x 3 x 3 grid
     # per step (the earlier search) reached 0.075 px/frame
-    from irdetect.correlate import _sample_sum, track_significance
+    from irdetect.verify import _sample_sum, track_significance
 
     ev, track = _faint_target_evidence(seed, snr=3.0)
     tm = float(np.mean(ev.index))
@@ -137,7 +137,7 @@ def test_verification_climbs_to_the_track_from_a_poor_fit(seed):
 
 
 def test_verification_significance_of_pure_noise_stays_low():
-    from irdetect.correlate import track_significance
+    from irdetect.verify import track_significance
 
     ev, _ = _faint_target_evidence(3, snr=0.0)
     rng = np.random.default_rng(5)
@@ -159,7 +159,7 @@ def test_bad_evidence_and_verify_are_named():
 def test_verification_rejects_a_moving_edge():
     # clutter residual that moves coherently (an edge 15 px long) integrates as well as
     # a target along its track, but it is as strong 3 px beside the track: not a point
-    from irdetect.correlate import Evidence, matched_frame, noise_level, standardise
+    from irdetect.verify import Evidence, matched_frame, noise_level, standardise
 
     rng = np.random.default_rng(4)
     h, w = 64, 96
@@ -175,7 +175,7 @@ def test_verification_rejects_a_moving_edge():
     pts = [_pts(30 + 0.8 * t, 32.0) for t in ev.times]
     assert len(correlate(*pts, step=12, evidence=ev, verify=6.5, min_score=0).segments) == 0
     # rejected by the point test, not for lack of energy: along its track it integrates
-    from irdetect.correlate import track_significance
+    from irdetect.verify import track_significance
     z, c, v = track_significance(ev, np.stack(pts, axis=1))
     assert z[0] > 6.5
 
@@ -190,7 +190,7 @@ def test_track_sums_match_direct_interpolation(shape, bilinear, atol):
     # scipy's interpolation, positions clamped to the frame
     from scipy.ndimage import map_coordinates
 
-    from irdetect.correlate import _sample_sum
+    from irdetect.verify import _sample_sum
     rng = np.random.default_rng(5)
     m, h, w = shape
     blocks = [rng.normal(size=shape).astype(np.float32) for _ in range(2)]

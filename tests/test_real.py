@@ -269,7 +269,7 @@ def test_local_significance_discounts_clutter_correlated_in_time():
     # the verification's statistic assumes independent frames; a clutter residue that
     # stays put (registration residue of textured ground) scores as high as a target.
     # The local test measures the track against parallel tracks around it.
-    from irdetect.correlate import Evidence, local_significance, track_significance
+    from irdetect.verify import Evidence, local_significance, track_significance
 
     rng = np.random.default_rng(3)
     n, h, w = 36, 64, 96

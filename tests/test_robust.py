@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from irdetect.correlate import standardise
+from irdetect.verify import standardise
 from irdetect.detect import detect
 from irdetect.robust import median_mad_sigma, tile_grid, tile_map, tile_samples
 from irdetect.suppress import noise_sigma
