@@ -92,6 +92,7 @@ class CorrelateConfig:
     verify: float = 6.5
     verify_local: float = 3.5
     screen: float = 0.4
+    chains_per_point: int = 0
 
 
 @dataclass(frozen=True)

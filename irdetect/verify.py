@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from irdetect.robust import median_mad_sigma, tile_map, tile_samples
+from irdetect.robust import median, median_mad_sigma, tile_map, tile_samples
 
 
 @dataclass(frozen=True)
@@ -109,7 +109,7 @@ def matched_frame(residual, smooth: float, out: np.ndarray | None = None) -> np.
         f = out
     # a suppressor may leave a non-zero level (the top-hat's residual is >= 0): summed
     # over many frames it would read as signal
-    f -= np.float32(np.median(f[::4, ::4]))
+    f -= np.float32(median(f[::4, ::4]))
     return f
 
 

@@ -210,3 +210,55 @@ def test_track_sums_match_direct_interpolation(shape, bilinear, atol):
                                 order=1, mode="nearest").reshape(got.shape)
     assert got.shape == (8, 5)
     np.testing.assert_allclose(got, want, atol=atol)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_straight_chains_are_the_full_join_filtered_in_its_order(seed):
+    # the lookup around 2 p2 - p1 (``_chains(deviation=)``) returns the chains of the full
+    # join that the constant-velocity test keeps, in the same order
+    from irdetect.correlate import _chains
+
+    rng = np.random.default_rng(seed)
+    pts = [rng.uniform(0, 200, (int(rng.integers(0, 120)), 2)) for _ in range(3)]
+    full = _chains(pts, 30.0)
+    dev = np.hypot(*(pts[0][full[:, 0]] - 2 * pts[1][full[:, 1]] + pts[2][full[:, 2]]).T) \
+        if len(full) else np.zeros(0)
+    want = full[dev <= 12.0]
+    got = _chains(pts, 30.0, 12.0)
+    got_dev = np.hypot(*(pts[0][got[:, 0]] - 2 * pts[1][got[:, 1]] + pts[2][got[:, 2]]).T) \
+        if len(got) else np.zeros(0)
+    np.testing.assert_array_equal(got[got_dev <= 12.0], want)
+
+
+def test_chains_per_point_bounds_the_verified_chains_and_keeps_the_target():
+    # a target's chain among 30 noise points per frame: with chains_per_point 1 far
+    # fewer chains reach the verification, and the target's is still confirmed
+    import irdetect.correlate as C
+
+    ev, track = _faint_target_evidence(0, snr=3.0)
+    rng = np.random.default_rng(1)
+    pts = []
+    for t in ev.times:
+        noise = rng.uniform(2, 60, (30, 2))
+        p = np.zeros(31, dtype=[("x", "f8"), ("y", "f8"), ("score", "f8")])
+        p["x"], p["y"] = np.r_[track[int(t)][0], noise[:, 0]], np.r_[track[int(t)][1], noise[:, 1]]
+        p["score"] = np.r_[6.0, rng.uniform(3.5, 6.0, 30)]
+        pts.append(p)
+    seen = []
+    original = C.verify_tracks
+
+    def counting(evidence, points, **kw):
+        seen.append(len(points))
+        return original(evidence, points, **kw)
+
+    C.verify_tracks = counting
+    try:
+        every = correlate(*pts, 12, ev, max_speed=1.0, chains_per_point=0)
+        few = correlate(*pts, 12, ev, max_speed=1.0, chains_per_point=1)
+    finally:
+        C.verify_tracks = original
+    assert seen[1] < seen[0] / 2
+    for corr in (every, few):
+        assert (corr.index == 0).all(axis=1).any()
+    with pytest.raises(ValueError, match="chains_per_point"):
+        correlate(*pts, 12, ev, chains_per_point=-1)
