@@ -9,6 +9,8 @@ frame itself (globally or per tile).
 
 from __future__ import annotations
 
+import functools
+
 from dataclasses import dataclass
 
 import cv2
@@ -63,6 +65,12 @@ def line_kernels(window: int, directions: int = 4) -> list[np.ndarray]:
     steps with bilinear weights, so every kernel sums to ``window``.
     """
     _check_window(window)
+    return [k.copy() for k in _kernels(int(window), int(directions))]
+
+
+@functools.lru_cache(maxsize=16)
+def _kernels(window: int, directions: int) -> tuple:
+    """``line_kernels``, built once per (window, directions) of a run (read-only)."""
     r = window // 2
     out = []
     for deg in direction_degrees(directions):
@@ -84,8 +92,9 @@ def line_kernels(window: int, directions: int = 4) -> list[np.ndarray]:
                                     (x0, y0 + 1, (1 - fx) * fy), (x0 + 1, y0 + 1, fx * fy)):
                     if wgt > 1e-9:
                         k[yy, xx] += wgt
+        k.flags.writeable = False
         out.append(k)
-    return out
+    return tuple(out)
 
 
 def detect(combined, *, window: int = 3, k: float = 2.5, sigma: str = "local",
@@ -176,7 +185,7 @@ def _detect(img, window, k, sigma, tile, directions, sample=2):
         # no line to sum along: the frame's own values, one "direction"
         s = img[None].copy()
     else:
-        kernels = line_kernels(window, directions)
+        kernels = _kernels(window, directions)
         # every direction's merged sum in one stack, so the tile statistics of all of
         # them come from one sort
         s = np.empty((len(kernels), h, w), np.float32)
