@@ -422,10 +422,16 @@ def _sample_sum(blocks, dts, cc, vv, bilinear, shift=None, cap=None):
         k = len(total[sl])
         mx = np.empty((n_f, k, hyp), f32)
         my = np.empty((n_f, k, hyp), f32)
-        np.multiply(vx[sl], dt, out=mx)
-        mx += x0[sl]
-        np.multiply(vy[sl], dt, out=my)
-        my += y0[sl]
+        if vx.shape[1] == 1:
+            # one velocity for all hypotheses of a segment: the motion v dt is (F, k, 1),
+            # and the maps are written in one pass each
+            np.add(vx[sl] * dt, x0[sl], out=mx)
+            np.add(vy[sl] * dt, y0[sl], out=my)
+        else:
+            np.multiply(vx[sl], dt, out=mx)
+            mx += x0[sl]
+            np.multiply(vy[sl], dt, out=my)
+            my += y0[sl]
         if shift is not None:
             mx += shift[:, 0, None, None]
             my += shift[:, 1, None, None]
