@@ -162,8 +162,9 @@ def track_significance(evidence: Evidence, points: np.ndarray, screen: float = -
     points : ndarray of shape (n, 3, 2)
         (x, y) of each segment's 3 points, at ``evidence.times``.
     screen : float
-        Segments whose statistic after the first (coarse) search stage is below
-        ``screen`` are not refined further (their coarse values are returned).
+        Segments whose statistic after the first (coarse) search stage, or after a
+        refinement step, is below ``screen`` are not refined further (their values
+        there are returned).
 
     Returns
     -------
@@ -225,6 +226,11 @@ def track_significance(evidence: Evidence, points: np.ndarray, screen: float = -
             # still moving after the last round: the statistic where c, v are now
             z[rows] = _sample_sum(frames, dts, c[rows, None], v[rows, None], True,
                                   **kw)[:, 0] / norm
+        # the screen again after each step: a chain whose bilinear statistic fell under
+        # it is not refined further (37 % of the refined chains after the first step on
+        # check_identity's scenes and the 13 real sequences, where the lowest statistic
+        # after it of a chain that passed ``verify`` was 3.56, 1.4 x the screen)
+        live = live[z[live] >= screen]
     return z, c, v
 
 
