@@ -150,28 +150,59 @@ def _level(resid, mask):
     sample = resid[::3, ::3] if mask is None else resid[mask]
     if sample.size == 0:
         return float("nan"), float("nan")
-    med, sigma = _clipped_level(sample.astype(np.float64, copy=False).reshape(1, -1))
-    return float(med[0]), float(sigma[0])
-
-
-def _clipped_level(sample):
-    """Row-wise median and 3-sigma-clipped standard deviation (3 rounds, as ``_level``).
-
-    sample : ndarray of shape (n, m), NaN = no sample. Returns two arrays of shape (n,);
-    a row keeps its previous estimate once fewer than 2 samples survive the clip.
-    """
-    med = np.nanmedian(sample, axis=1)
-    sigma = 1.2533 * np.nanmean(np.abs(sample - med[:, None]), axis=1)
+    sample = sample.astype(np.float64, copy=False).ravel()
+    med = float(np.median(sample))
+    sigma = 1.2533 * float(np.mean(np.abs(sample - med)))
     for _ in range(3):
-        kept = np.where(np.abs(sample - med[:, None]) < 3 * sigma[:, None], sample, np.nan)
-        n = np.sum(~np.isnan(kept), axis=1)
+        kept = sample[np.abs(sample - med) < 3 * sigma]
+        if kept.size < 2:
+            break
+        med, sigma = float(np.median(kept)), float(kept.std()) / CLIPPED_STD
+    return med, sigma
+
+
+def _clipped_rows(sample):
+    """``_level``'s estimate for every row of ``sample`` at once.
+
+    sample : ndarray of shape (n, m), float64, NaN = no sample. Returns median and
+    sigma, each of shape (n,). Rows are sorted once: the samples within 3 sigma of the
+    median are a contiguous run of a sorted row, so each round's median is read at the
+    run's middle and its standard deviation from cumulative sums; a row keeps its
+    previous estimate once fewer than 2 samples survive the clip.
+    """
+    srt = np.sort(sample, axis=1)                   # NaN last
+    valid = ~np.isnan(srt)
+    n0 = valid.sum(axis=1)
+    v = np.where(valid, srt, 0.0)
+    zero = np.zeros((len(v), 1))
+    cs = np.hstack([zero, np.cumsum(v, axis=1)])
+    cs2 = np.hstack([zero, np.cumsum(v * v, axis=1)])
+    rows = np.arange(len(v))
+
+    last = srt.shape[1] - 1
+
+    def median(lo, n):
+        a = srt[rows, np.minimum(lo + np.maximum(n - 1, 0) // 2, last)]
+        b = srt[rows, np.minimum(lo + n // 2, last)]
+        return (a + b) / 2
+
+    med = median(np.zeros_like(n0), n0)
+    below = np.sum(srt < med[:, None], axis=1)      # NaN compares False
+    total = cs[rows, n0]
+    absdev = total - 2 * cs[rows, below] - med * (n0 - 2 * below)
+    sigma = 1.2533 * absdev / np.maximum(n0, 1)
+    for _ in range(3):
+        lo = np.sum(srt <= (med - 3 * sigma)[:, None], axis=1)
+        hi = np.sum(srt < (med + 3 * sigma)[:, None], axis=1)
+        n = hi - lo
         ok = n >= 2
         if not ok.any():
             break
-        with np.errstate(all="ignore"):
-            m2 = np.nanmedian(kept[ok], axis=1)
-            s2 = np.nanstd(kept[ok], axis=1) / CLIPPED_STD
-        med[ok], sigma[ok] = m2, s2
+        nk = np.maximum(n, 1)
+        mean = (cs[rows, hi] - cs[rows, lo]) / nk
+        var = np.maximum((cs2[rows, hi] - cs2[rows, lo]) / nk - mean * mean, 0.0)
+        med = np.where(ok, median(lo, np.maximum(n, 1)), med)
+        sigma = np.where(ok, np.sqrt(var) / CLIPPED_STD, sigma)
     return med, sigma
 
 
@@ -180,10 +211,10 @@ MIN_TILE_SAMPLES = 32
 
 
 def _local_level(resid, tile, mask, med, sigma):
-    """Median and sigma maps (H, W) of the residual: ``_clipped_level`` of each
+    """Median and sigma maps (H, W) of the residual: ``_level``'s estimate for each
     ``tile`` x ``tile`` block on a 2-px grid, bilinear between block centres.
-
-    Tiles with fewer than MIN_TILE_SAMPLES unmasked samples take the frame's (med,
+ Tiles with fewer than MIN_TILE_SAMPLES unmasked samples
+    take the frame's (med,
     sigma); a tile's sigma is floored at a quarter of the median tile's (flat, clipped
     or saturated patches)."""
     h, w = resid.shape
@@ -196,7 +227,7 @@ def _local_level(resid, tile, mask, med, sigma):
     tmed, tsig = np.full(ny * nx, med), np.full(ny * nx, sigma)
     ok = count >= MIN_TILE_SAMPLES
     if ok.any():
-        tmed[ok], tsig[ok] = _clipped_level(flat[ok])
+        tmed[ok], tsig[ok] = _clipped_rows(flat[ok])
     tsig = np.maximum(tsig, 0.25 * float(np.median(tsig)))
     return tile_map(tmed.reshape(ny, nx), h, w), tile_map(tsig.reshape(ny, nx), h, w)
 
