@@ -51,7 +51,7 @@ def extract_regions(frame: np.ndarray, *, suppress_size: int = 15, k: float = 5.
         Sigma (px) of the Gaussian the residual is smoothed by before thresholding: the
         matched filter of a Gaussian PSF of that sigma (0: none, the paper's). A target of
         PSF sigma s and peak SNR a reaches 2 sqrt(pi) a s^2 f / (s^2 + f^2) sigmas of the
-        smoothed noise (f = ``smooth``): 8.4 sigmas at a = 4.2, s = 1.3, f = 1, against
+        smoothed white noise (f = ``smooth``): 9.4 sigmas at a = 4.2, s = 1.3, f = 1, against
         4.2 unsmoothed.
     tile : int
         Side (px) of the square tiles over which the residual's median and sigma are
@@ -114,9 +114,10 @@ def residual_level(frame: np.ndarray, suppress_size: int = 15,
                    mask: np.ndarray | None = None) -> tuple[float, float]:
     """Median and robust sigma of the white top-hat residual of a frame.
 
-    The threshold of :func:`extract_regions` is ``median + k sigma``; the tracker counts
-    grey differences in this sigma, so its defaults hold for any dtype, background and
-    noise level.
+    Unsmoothed and without tiles (``smooth = 0, tile = 0``, the ``maritime`` and ``paper``
+    profiles) the threshold of :func:`extract_regions` is ``median + k sigma`` of this; the
+    tracker counts grey differences in this sigma, so its defaults hold for any dtype,
+    background and noise level.
 
     Parameters
     ----------
