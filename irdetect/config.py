@@ -156,7 +156,9 @@ class TrackConfig:
     band_above: float = 5.0
     band_below: float = 40.0
     suppress_size: int = 15
-    k: float = 4.0
+    k: float = 5.0
+    smooth: float = 1.0
+    tile: int = 32
     min_contrast: float = 0.0
     min_area: float = 2.0
     max_area: float = 200.0

@@ -21,8 +21,9 @@ docs/results/throughput.md and docs/results/profiles.md):
     test (with the paper's unique correspondence nothing survives at k 3.5). For
     ``irdetect track``: Cheng et al.'s absolute grey and area gates of their harbour.
 ``maritime``
-    ``irdetect track`` on sea scenes only: the sea-sky band, 5.5 robust sigmas and 5 px
-    against waves and glints (``process`` runs it as the default).
+    ``irdetect track`` on sea scenes only: the sea-sky band, 5.5 robust sigmas of the
+    unsmoothed residual and 5 px against waves and glints (``process`` runs it as the
+    default).
 """
 
 from __future__ import annotations

@@ -116,7 +116,10 @@ def stretch(frame, *, limits: tuple[float, float] | None = None, low: float = 0.
         levels = np.arange(256 if arr.dtype == np.uint8 else 65536, dtype=np.float64)
         lut = _curve(levels, lo, hi, gamma)
         if arr.dtype == np.uint8:
-            return cv2.LUT(np.ascontiguousarray(arr), lut)
+            # as (rows, W): OpenCV 5 reads a (T, H, W) array as H x ... with W channels
+            # and refuses W > 128
+            flat = np.ascontiguousarray(arr).reshape(-1, arr.shape[-1]) if arr.ndim else arr
+            return cv2.LUT(flat, lut).reshape(arr.shape)
         return lut[arr]
     return _curve(np.asarray(arr, np.float64), lo, hi, gamma)
 

@@ -1,7 +1,8 @@
 """Track small (possibly extended) targets frame by frame through a whole sequence.
 
-Candidate regions of every frame (top-hat, CFAR threshold, connected components, grey and
-area gates; optionally only near the sea-sky line) are associated to the tracks by fuzzy
+Candidate regions of every frame (top-hat, a 1-px matched filter, a CFAR threshold on the
+local noise, connected components, grey and area gates; optionally only near the sea-sky
+line) are associated to the tracks by fuzzy
 c-means memberships and followed by a constant-velocity filter with adaptive process noise
 (Cheng et al.; docs/tracking.md), or by the CV Kalman + GNN baseline (--method gnn).
 Writes /track_points (one row per track per frame) and /tracks (one row per track).
@@ -30,9 +31,10 @@ def add_arguments(p):
                    help="results file (default: INPUT_NAME.track.h5 in the current folder)")
     p.add_argument("--config", help="TOML file; its [track] table sets the tracker (docs/tracking.md)")
     p.add_argument("--profile", default="default", metavar="NAME",
-                   help="default (gates relative to the measured noise, any sensor), maritime "
-                   "(sea scenes: the sea-sky band, 5.5 sigmas and 5 px against waves and glints) "
-                   "or paper (the paper's absolute grey and area gates of its harbour scene)")
+                   help="default (a 1-px matched filter and 5 sigmas of the local measured "
+                   "noise, any sensor), maritime (sea scenes: the sea-sky band, unsmoothed, 5.5 "
+                   "sigmas and 5 px against waves and glints) or paper (the paper's absolute "
+                   "grey and area gates of its harbour scene)")
     p.add_argument("--method", choices=["fcm-pmht", "gnn"],
                    help="FCM + adaptive PMHT (default) or the CV Kalman + GNN baseline")
     p.add_argument("--sea-sky", action="store_true", default=None,

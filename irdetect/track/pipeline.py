@@ -20,8 +20,8 @@ METHODS = ("fcm-pmht", "gnn")
 
 def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bool = False, *,
           method: str = "fcm-pmht", sea_sky: bool = False, band_above: float = 5.0,
-          band_below: float = 40.0, suppress_size: int = 15, k: float = 4.0,
-          min_contrast: float = 0.0, min_area: float = 2.0, max_area: float = 200.0,
+          band_below: float = 40.0, suppress_size: int = 15, k: float = 5.0,
+          smooth: float = 1.0, tile: int = 32, min_contrast: float = 0.0, min_area: float = 2.0, max_area: float = 200.0,
           grey_gate: bool = False, min_grey: float = 100.0, max_grey: float = 180.0,
           max_regions: int = 200,
           frame_interval: float = 1.0, q0: float = 1e-3, r: float = 0.5,
@@ -51,15 +51,17 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
         Find the sea-sky line in every frame and search only the band from ``band_above``
         pixels above it to ``band_below`` pixels below it (maritime scenes; off for sky or
         ground scenes). A frame without a detectable horizon is searched whole.
-    suppress_size, k, min_contrast, min_area, max_area, min_grey, max_grey, max_regions
+    suppress_size, k, smooth, tile, min_contrast, min_area, max_area, min_grey, max_grey,
+    max_regions
         Region extraction, see :func:`irdetect.track.regions.extract_regions`; the grey
         interval [min_grey, max_grey] applies only with ``grey_gate`` (the paper's). Regions up to
         2 x ``max_area`` are kept, because two merged targets make one region of up to twice
         the area; those larger than ``max_area`` feed existing tracks but start none. The
-        defaults hold for any dtype, background and noise level: the threshold is 4
-        robust sigmas of the suppressed frame, no grey gate, areas 2-200 px (a lone noise
-        pixel stays out). Sea scenes, whose glints are small bright regions and whose
-        waves cross 4 sigmas, take the ``maritime`` profile (sea-sky band, 5.5 sigmas,
+        defaults hold for any dtype, background and noise level: the top-hat residual
+        smoothed by a 1-px Gaussian (the matched filter of a small PSF), thresholded at 5
+        robust sigmas of its own noise measured per 32-px tile, no grey gate, areas
+        2-200 px. Sea scenes, whose waves and glints sit at the targets' scale, take the
+        ``maritime`` profile (sea-sky band, unsmoothed, one level per frame, 5.5 sigmas,
         5 px); the paper's absolute gates are the ``paper`` profile (data/profiles/).
     grey_scale : float
         Grey difference counted as one unit of FCM distance, in robust sigmas of the
@@ -118,7 +120,8 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
             w_area=w_area, w_direction=w_direction, grey_scale=grey_levels,
             area_scale=area_scale, direction_after=direction_after, min_speed=min_speed,
             max_merged=max_merged, merge_margin=merge_margin, **common)
-    region_kw = dict(suppress_size=suppress_size, k=k, min_contrast=min_contrast,
+    region_kw = dict(suppress_size=suppress_size, k=k, smooth=smooth, tile=tile,
+                     min_contrast=min_contrast,
                      min_area=min_area, max_area=2 * max_area,
                      min_grey=min_grey if grey_gate else -np.inf,
                      max_grey=max_grey if grey_gate else np.inf, max_regions=max_regions)
