@@ -214,10 +214,10 @@ MIN_TILE_SAMPLES = 32
 def _local_level(resid, tile, mask, med, sigma):
     """Median and sigma maps (H, W) of the residual: ``_level``'s estimate for each
     ``tile`` x ``tile`` block on a 2-px grid, bilinear between block centres.
- Tiles with fewer than MIN_TILE_SAMPLES unmasked samples
-    take the frame's (med,
-    sigma); a tile's sigma is floored at a quarter of the median tile's (flat, clipped
-    or saturated patches)."""
+
+    Tiles with fewer than MIN_TILE_SAMPLES unmasked samples take the frame's (med, sigma);
+    a tile's sigma is floored at a quarter of the median tile's (flat, clipped or
+    saturated patches)."""
     h, w = resid.shape
     sub = tile_samples(resid, tile, 2).astype(np.float64)
     ny, nx, n = sub.shape
