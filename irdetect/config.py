@@ -142,6 +142,7 @@ class InitiateConfig:
     confirm_m: int = 3
     confirm_n: int = 4
     fit_confidence: float = 0.99
+    false_tracks: float = 0.0
     window: int = 10
 
 

@@ -36,7 +36,9 @@ Layout (one module per role, one contract): ``hough_sc`` (hough-sc, hough, nms, 
 dispatch); ``common`` the constant-velocity check and the merging of windows; ``base`` the
 parameters, the window of measurements, support recovery and result rows; ``images``
 ``initiate_detections`` and the tracks' positions; ``scans`` ``initiate_scans``;
-``sensor`` the sensor model and the parameters derived from it (``derive_params``).
+``sensor`` the sensor model and the parameters derived from it (``derive_params``);
+``clutter`` the per-track clutter test (``false_tracks``: could clutter of the measured
+density have made a chain as good, anywhere in the window?).
 """
 
 from irdetect.initiate.base import DEFAULTS, METHODS, POINT, ROW, check_params

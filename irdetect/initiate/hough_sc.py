@@ -25,6 +25,7 @@ import numpy as np
 from irdetect.cluster import subtractive_cluster
 from irdetect.hough import hough_transform, nms_peaks
 from irdetect.initiate.base import Window, dedupe, finish, support
+from irdetect.initiate.clutter import can_pass, clutter_test
 from irdetect.initiate.common import verify
 
 #: The methods of this module.
@@ -52,6 +53,8 @@ def initiate(points, *, params):
         Indices into ``points`` of every track's measurements.
     """
     win = Window.from_points(points, params)
+    if not can_pass(win, params):            # the clutter test would reject every track
+        return finish(win, [], None, None, None, None, params)
     acc = hough_transform(win.lx, win.ly, grid=win.grid, groups=win.grp, n_groups=win.n_groups)
     thr = max(1.0, math.ceil(params["vote_fraction"] * win.n_scans - 1e-9))
     return tracks_from_accumulator(win, acc, thr, params)
@@ -71,6 +74,10 @@ def tracks_from_accumulator(win: Window, acc, thr, p):
         src = np.flatnonzero(np.diff(ptr) >= 2)
         members = [mem[ptr[i]:ptr[i + 1]] for i in src]
     keep = dedupe(members, g[src], value[src], win, within=p["verify"])
+    if p["verify"] and p["false_tracks"] > 0 and keep:
+        # the per-track clutter test (irdetect.initiate.clutter)
+        ok, _ = clutter_test(win, [members[i] for i in keep], p)
+        keep = [i for i, k in zip(keep, ok) if k]
     src = src[keep]
     return finish(win, [members[i] for i in keep], g[src], rho[src], theta[src], value[src], p)
 

@@ -36,6 +36,7 @@ def initiate_detections(detections, *, method: str = DEFAULTS["method"],
                         confirm_m: int = DEFAULTS["confirm_m"],
                         confirm_n: int = DEFAULTS["confirm_n"],
                         fit_confidence: float = DEFAULTS["fit_confidence"],
+                        false_tracks: float = DEFAULTS["false_tracks"],
                         window: int = 10) -> np.ndarray:
     """Initiate tracks from the confirmed detections of an image sequence.
 

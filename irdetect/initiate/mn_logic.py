@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from irdetect.initiate.base import Window, finish
+from irdetect.initiate.clutter import can_pass, clutter_test
 
 #: The methods of this module.
 METHODS = ("mn-logic",)
@@ -20,7 +21,13 @@ def initiate(points, *, params):
     """Tracks of one window by M-of-N logic (the contract of ``irdetect.initiate``;
     parameters and returns as ``irdetect.initiate.hough_sc.initiate``)."""
     win = Window.from_points(points, params)
+    if not can_pass(win, {**params, "verify": True}):     # the test would reject them all
+        return finish(win, [], None, None, None, None, params)
     members = confirm_tracks(win, params)
+    if params["false_tracks"] > 0 and members:
+        # the per-track clutter test (irdetect.initiate.clutter)
+        ok, _ = clutter_test(win, members, params)
+        members = [m for m, k in zip(members, ok) if k]
     n = len(members)
     return finish(win, members, np.zeros(n, np.int64), np.zeros(n), np.zeros(n),
                   np.array([m.size for m in members], float), params)

@@ -21,7 +21,8 @@ from __future__ import annotations
 import numpy as np
 
 from irdetect.hough import fuzzy_hough_transform, hough_transform
-from irdetect.initiate.base import Window
+from irdetect.initiate.base import Window, finish
+from irdetect.initiate.clutter import can_pass
 from irdetect.initiate.hough_sc import tracks_from_accumulator
 
 #: The methods of this module.
@@ -33,6 +34,8 @@ def initiate(points, *, params):
     ``irdetect.initiate``; parameters and returns as ``irdetect.initiate.hough_sc.initiate``).
     """
     win = Window.from_points(points, params)
+    if not can_pass(win, params):            # the clutter test would reject every track
+        return finish(win, [], None, None, None, None, params)
     acc, thr = accumulate(win, params)
     return tracks_from_accumulator(win, acc, thr, params)
 
