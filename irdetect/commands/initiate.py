@@ -13,8 +13,10 @@ parameter (rho and theta cells, tiles, thresholds, gates) is derived from it, th
 period and the extent of the measurements (irdetect.initiate.sensor.derive_params);
 --config's [initiate] table, then the options, override any of them. A file of a named
 scenario preset (zhang2010, liang2015) is run with the preset's tuned [initiate] table
-instead of the derivation. Units are the file's. Writes /tracks (docs/initiation.md,
-docs/format.md).
+instead of the derivation. Each track must pass the per-track clutter test: clutter of the
+density measured in the window would give at most --false-tracks (default 0.05) chains as
+good per window (irdetect.initiate.clutter); past the separable limit one warning says so.
+Units are the file's. Writes /tracks (docs/initiation.md, docs/format.md).
 """
 
 from __future__ import annotations
@@ -46,6 +48,10 @@ def add_arguments(p):
     p.add_argument("--speed", metavar="MIN:MAX",
                    help="target speeds, the file's units per second (default: the file's "
                    "speed_min / speed_max attributes)")
+    p.add_argument("--false-tracks", type=float, metavar="RATE",
+                   help="expected false tracks per window the per-track clutter test allows "
+                   "(default 0.05, or the config's initiate.false_tracks; 0 turns the test "
+                   "off; a named preset's table runs without it)")
     p.add_argument("--method", choices=METHODS, help="initiation method (default: hough-sc "
                    "or the scenario preset's)")
     p.add_argument("--window", type=int, default=None,
@@ -120,7 +126,15 @@ def resolve(args, scans, attrs) -> tuple[dict, object]:
     if window is not None and window < 2 and window != 0:
         raise InputError(f"--window must be >= 2, got {window}")
     window = max(2, min(window or n_scans, n_scans)) if window is not None else None
-    derived = derive_params(sensor, scans, window=window)
+    rate = args.false_tracks
+    if rate is not None and not (math.isfinite(rate) and rate >= 0):
+        raise InputError(f"--false-tracks must be a number >= 0, got {rate}", args.input)
+    if rate is None:
+        rate = table.get("false_tracks", 0.0 if preset else 0.05)
+    if not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate >= 0):
+        raise InputError(f"initiate.false_tracks must be a number >= 0, got {rate!r}",
+                         args.config)
+    derived = derive_params(sensor, scans, window=window, false_tracks=float(rate))
     # a named preset's table is the paper's tuned setting: it replaces the derivation (over
     # the defaults, as before issue 17); --config overrides single derived parameters
     data = {**(DEFAULTS if preset else derived), **table}
@@ -130,6 +144,8 @@ def resolve(args, scans, attrs) -> tuple[dict, object]:
         data["merge_peaks"] = True
     if args.no_verify:
         data["verify"] = False
+    if args.false_tracks is not None:
+        data["false_tracks"] = args.false_tracks
     data["window"] = derived["window"]
     cfg = from_dict(InitiateConfig, data, where="initiate", path=args.config)
     return dataclasses.asdict(cfg), sensor
@@ -137,7 +153,7 @@ def resolve(args, scans, attrs) -> tuple[dict, object]:
 
 #: the most measurements one window may hold: 1.4x the papers' densest scene (zhang2010 at
 #: 0.1 clutter points per km^2: 14,425 in 10 scans, 2.6 s); the work grows faster than
-#: their number (10,000 uniform points at a 5 s period took 107 s and 6 GB on 2 cores,
+#: their number (10,000 uniform points at a 5 s period took 84 s and 6.1 GB on 2 cores,
 #: 50,000 ran past 300 s at 20 GB)
 MAX_WINDOW_POINTS = 20_000
 
@@ -167,9 +183,10 @@ def run(args) -> int:
     window = params.pop("window")
     log.info("sensor model: sigma %g, sigma_range %g, sigma_azimuth %g deg, speed %g-%g per s; "
              "derived: rho cells %.4g, %d theta cells, tile %.4g, %d-scan window, "
-             "min_hits %.2f", sensor.sigma, sensor.sigma_range,
+             "min_hits %.2f, false_tracks %g", sensor.sigma, sensor.sigma_range,
              math.degrees(sensor.sigma_azimuth), sensor.speed_min, sensor.speed_max,
-             params["rho_step"], params["n_theta"], params["tile"], window, params["min_hits"])
+             params["rho_step"], params["n_theta"], params["tile"], window, params["min_hits"],
+             params["false_tracks"])
     if n_scans < 2:
         log.warning("%s holds %d scan(s): a track needs at least 2; no tracks", args.input,
                     n_scans)
