@@ -182,7 +182,7 @@ def run(args) -> int:
     n_scans = len(set(scans["scan"].tolist()))
     window = params.pop("window")
     log.info("sensor model: sigma %g, sigma_range %g, sigma_azimuth %g deg, speed %g-%g per s; "
-             "derived: rho cells %.4g, %d theta cells, tile %.4g, %d-scan window, "
+             "parameters: rho cells %.4g, %d theta cells, tile %.4g, %d-scan window, "
              "min_hits %.2f, false_tracks %g", sensor.sigma, sensor.sigma_range,
              math.degrees(sensor.sigma_azimuth), sensor.speed_min, sensor.speed_max,
              params["rho_step"], params["n_theta"], params["tile"], window, params["min_hits"],
