@@ -156,8 +156,9 @@ def _subclust(u, x, r, squash, accept, reject, w, mirror, groups, want_labels=Tr
     """Kernel on unit-box data u, every group at once.
 
     Only pairs within ``cutoff`` radii count (exp(-4 * 2^2) ~ 1e-7 of a point's own
-    share; the subtraction reaches ``cutoff`` r_b). One KD-tree over the points, with the group as an extra coordinate far
-    beyond the cut-off so groups never interact, gives the neighbour graph once; the
+    share; the subtraction reaches ``cutoff`` r_b). One KD-tree over the points, with
+    the group as an extra coordinate far beyond the cut-off so groups never interact,
+    gives the neighbour graph once (``_pair_graph``); the
     centre search then runs all groups in lock step: each pass takes the highest
     remaining potential of every group still searching, so the number of passes is
     the largest number of centres of one group, not the number of groups.
@@ -174,38 +175,11 @@ def _subclust(u, x, r, squash, accept, reject, w, mirror, groups, want_labels=Tr
         zp = zm.copy()
         zp[:, 1] = 2 * z[:, 1] - zm[:, 1]
         views += [zm, zp]
-    tree = cKDTree(np.hstack([z, sep]))
-    # pairs (i, j) with |z_i - view(z_j)| <= reach; a pair found through several views
-    # keeps its smallest distance (the line-wrap rule)
-    ii, jj, dd = [], [], []
-    for v in views:
-        sd = tree.sparse_distance_matrix(cKDTree(np.hstack([v, sep])), reach,
-                                         output_type="ndarray")
-        ii.append(sd["i"]), jj.append(sd["j"]), dd.append(sd["v"])
-    ii, jj, dd = np.concatenate(ii), np.concatenate(jj), np.concatenate(dd)
-    if len(views) > 1 and (mirror[0, 1] - u[0, 1]) ** 2 / r[1] ** 2 < (2 * reach) ** 2:
-        # a theta range so short (against the radius) that one pair can be near through
-        # two views: keep each pair's smallest distance
-        key = ii.astype(np.int64) * n + jj
-        order = np.lexsort((dd, key))
-        first = np.r_[True, key[order][1:] != key[order][:-1]]
-        ii, jj, dd = ii[order][first], jj[order][first], dd[order][first]
-    else:
-        order = np.argsort(ii, kind="stable")
-        ii, jj, dd = ii[order], jj[order], dd[order]
-    # self pairs (distance 0) are in the graph whatever sparse_distance_matrix does
-    self_missing = np.setdiff1d(np.arange(n), ii[ii == jj])
-    if self_missing.size:
-        ii = np.r_[ii, self_missing]
-        jj = np.r_[jj, self_missing]
-        dd = np.r_[dd, np.zeros(self_missing.size)]
-        o = np.argsort(ii, kind="stable")
-        ii, jj, dd = ii[o], jj[o], dd[o]
-    near = dd <= cutoff
-    pot = np.bincount(ii[near], weights=np.exp(-4.0 * dd[near] ** 2) * w[jj[near]], minlength=n)
+    ii, jj, dd = _pair_graph(z, sep, views, reach, short=len(views) > 1 and (
+        mirror[0, 1] - u[0, 1]) ** 2 / r[1] ** 2 < (2 * reach) ** 2)
+    pot = _potentials(ii, jj, dd, w, n, cutoff)
     # neighbour lists of every point (CSR over ii) for the subtraction: -4 d^2 / squash^2
     ptr = np.searchsorted(ii, np.arange(n + 1))
-    sub = np.exp(-4.0 * (dd / squash) ** 2)
     g_ids, g_of = np.unique(groups, return_inverse=True)
     G = g_ids.size
     by_group = np.argsort(g_of, kind="stable")
@@ -253,7 +227,8 @@ def _subclust(u, x, r, squash, accept, reject, w, mirror, groups, want_labels=Tr
         cnt = ptr[kt + 1] - ptr[kt]
         pos = _csr_positions(ptr[kt], cnt)
         js = jj[pos]
-        pot[js] = np.maximum(pot[js] - np.repeat(pt, cnt) * sub[pos], 0.0)
+        sub = np.exp(-4.0 * (dd[pos] / squash) ** 2)
+        pot[js] = np.maximum(pot[js] - np.repeat(pt, cnt) * sub, 0.0)
         pot[kt] = 0.0
     idx = np.concatenate(centres) if centres else np.zeros(0, np.int64)
     pots = np.concatenate(cpot) if cpot else np.zeros(0)
@@ -267,3 +242,69 @@ def _subclust(u, x, r, squash, accept, reject, w, mirror, groups, want_labels=Tr
             better = d < best
             best[better], labels[better] = d[better], j[better]
     return Clusters(x[idx], idx, pots, labels)
+
+
+def _pair_graph(z, sep, views, reach, short):
+    """Neighbour pairs (i, j, distance) with |z_i - view(z_j)| <= ``reach``, sorted by i.
+
+    ``z`` (n, d) scaled points, ``sep`` (n, 1) the group coordinate, ``views`` the
+    point sets j is taken from (z and, for wrapped lines, its two mirrors). A pair found
+    through several views keeps its smallest distance when ``short`` (a theta range so
+    short against the radius that this can happen); otherwise the views' pairs are
+    concatenated, each i's in the order found. Indices are int32 and each view's pairs
+    are converted as they come (the graph is the memory of the clustering: ~100
+    million pairs for 700,000 Hough cells).
+    """
+    from scipy.spatial import cKDTree
+
+    n = len(z)
+    tree = cKDTree(np.hstack([z, sep]))
+    ii, jj, dd = [], [], []
+    for v in views:
+        sd = tree.sparse_distance_matrix(cKDTree(np.hstack([v, sep])), reach,
+                                         output_type="ndarray")
+        ii.append(sd["i"].astype(np.int32)), jj.append(sd["j"].astype(np.int32))
+        dd.append(sd["v"])
+        del sd
+    ii, jj, dd = np.concatenate(ii), np.concatenate(jj), np.concatenate(dd)
+    if short:
+        key = ii.astype(np.int64) * n + jj
+        order = np.lexsort((dd, key))
+        first = np.r_[True, key[order][1:] != key[order][:-1]]
+        order = order[first]
+    else:
+        order = np.argsort(ii, kind="stable")
+    ii, jj, dd = ii[order], jj[order], dd[order]
+    # self pairs (distance 0) are in the graph whatever sparse_distance_matrix does
+    self_missing = np.setdiff1d(np.arange(n, dtype=np.int32), ii[ii == jj])
+    if self_missing.size:
+        ii = np.r_[ii, self_missing]
+        jj = np.r_[jj, self_missing]
+        dd = np.r_[dd, np.zeros(self_missing.size)]
+        o = np.argsort(ii, kind="stable")
+        ii, jj, dd = ii[o], jj[o], dd[o]
+    return ii, jj, dd
+
+
+#: pairs per block of ``_potentials`` (blocks end between two points' pairs)
+POT_BLOCK = 1 << 22
+
+
+def _potentials(ii, jj, dd, w, n, cutoff):
+    """Every point's potential sum_j w_j exp(-4 d_ij^2) over its pairs within ``cutoff``
+    (``ii`` sorted), in blocks of whole points' pairs: each point's sum is added in the
+    same order as one pass over all pairs, so the values are the same to the bit."""
+    pot = np.zeros(n)
+    lo = 0
+    while lo < len(ii):
+        hi = min(len(ii), lo + POT_BLOCK)
+        if hi < len(ii):
+            hi = int(np.searchsorted(ii, ii[hi], side="left"))
+            if hi <= lo:                                # one point with > POT_BLOCK pairs
+                hi = int(np.searchsorted(ii, ii[lo], side="right"))
+        i, j, d = ii[lo:hi], jj[lo:hi], dd[lo:hi]
+        near = d <= cutoff
+        pot += np.bincount(i[near], weights=np.exp(-4.0 * d[near] ** 2) * w[j[near]],
+                           minlength=n)
+        lo = hi
+    return pot

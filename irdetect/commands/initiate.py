@@ -153,8 +153,8 @@ def resolve(args, scans, attrs) -> tuple[dict, object]:
 
 #: the most measurements one window may hold: 1.4x the papers' densest scene (zhang2010 at
 #: 0.1 clutter points per km^2: 14,425 in 10 scans, 2.6 s); the work grows faster than
-#: their number (10,000 uniform points at a 5 s period took 84 s and 6.1 GB on 2 cores,
-#: 50,000 ran past 300 s at 20 GB)
+#: their number (10,000 uniform points at a 5 s period took 76 s and 5.2 GB on 2 cores,
+#: 50,000 ran past 300 s at 20 GB before the clustering's graph was made smaller)
 MAX_WINDOW_POINTS = 20_000
 
 
