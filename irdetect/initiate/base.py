@@ -74,6 +74,18 @@ def check_params(params: dict) -> dict:
 
 
 
+def sigma_axes(p, r=None):
+    """Error-ellipse sigmas (along, across) of measurements at ranges ``r`` (any shape):
+    range and cross-range (r sigma_azimuth, floored at a tenth of sigma_range so a
+    measurement at the radar stays finite) for polar parameters and ranges, else
+    ``sigma`` for both (``r`` None or no polar sigmas). Broadcastable to ``r``'s shape."""
+    if r is not None and (p["sigma_range"] > 0 or p["sigma_azimuth"] > 0):
+        floor = 0.1 * max(p["sigma_range"], p["sigma"])
+        return (np.maximum(p["sigma_range"], floor),
+                np.maximum(np.asarray(r, float) * p["sigma_azimuth"], floor))
+    return float(p["sigma"]), float(p["sigma"])
+
+
 class Window:
     """Measurements of one window with per-point sigma and the tiling of the plane."""
 
@@ -141,14 +153,11 @@ class Window:
 
     def error_axes(self, idx, p):
         """Error ellipse of measurements idx: (cos, sin) of the first axis, its sigma and
-        the sigma across it. Polar: range and cross-range (r sigma_azimuth, floored at a
-        tenth of sigma_range so a measurement at the radar stays finite); else a circle
-        of ``sigma``."""
+        the sigma across it (``sigma_axes``: range and cross-range for polar
+        measurements, else a circle of ``sigma``)."""
         if self.polar is not None and (p["sigma_range"] > 0 or p["sigma_azimuth"] > 0):
             r, b = self.polar[0][idx], self.polar[1][idx]
-            floor = 0.1 * max(p["sigma_range"], p["sigma"])
-            return (np.cos(b), np.sin(b), np.maximum(p["sigma_range"], floor),
-                    np.maximum(r * p["sigma_azimuth"], floor))
+            return (np.cos(b), np.sin(b), *sigma_axes(p, r))
         one = np.ones(np.shape(idx))
         return one, 0 * one, p["sigma"] * one, p["sigma"] * one
 

@@ -38,6 +38,8 @@ import math
 
 import numpy as np
 
+from irdetect.initiate.base import sigma_axes
+
 #: Gate levels tried, as fractions of ``gate`` (1.15: the CV check's refinement gate).
 LEVELS = (0.5, 2 / 3, 5 / 6, 1.0, 1.15)
 
@@ -221,7 +223,7 @@ def separability(x, y, t, n_scans, p, *, range_=None, explained: int = 0):
     area = hull_area(x, y)
     if not (p["false_tracks"] > 0 and area > 0 and n_scans >= 2):
         return 0.0, math.inf
-    s_r, s_c = point_axes(p, len(x), range_)
+    s_r, s_c = sigma_axes(p, range_)
     s_r, s_c = np.array([np.median(s_r)]), np.array([np.median(s_c)])
     cell = float(math.pi * p["gate"] ** 2 * s_r[0] * s_c[0])
     H = hypotheses(area, float(np.ptp(t)), p["v_max"], p["gate"], s_r, s_c)
@@ -236,18 +238,6 @@ def separability(x, y, t, n_scans, p, *, range_=None, explained: int = 0):
                               p["gate"])[0]
         lo, hi = (mid, hi) if E <= p["false_tracks"] else (lo, mid)
     return load, math.exp(lo)
-
-
-def point_axes(p, n, range_=None):
-    """Error-ellipse axes (s_r, s_c) of n measurements, arrays of shape (n,): range and
-    cross-range (r sigma_azimuth, floored at a tenth of sigma_range) for polar
-    parameters and ranges, else a circle of ``sigma`` (as ``Window.error_axes``)."""
-    if range_ is not None and (p["sigma_range"] > 0 or p["sigma_azimuth"] > 0):
-        r = np.asarray(range_, float)
-        floor = 0.1 * max(p["sigma_range"], p["sigma"])
-        return (np.full(n, max(p["sigma_range"], floor)),
-                np.maximum(r * p["sigma_azimuth"], floor))
-    return np.full(n, float(p["sigma"])), np.full(n, float(p["sigma"]))
 
 
 def can_pass(win, p) -> bool:
