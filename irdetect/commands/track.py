@@ -2,9 +2,9 @@
 
 Candidate regions of every frame (top-hat, a 1-px matched filter, a CFAR threshold on the
 local noise, connected components, grey and area gates; optionally only near the sea-sky
-line) are associated to the tracks by fuzzy
-c-means memberships and followed by a constant-velocity filter with adaptive process noise
-(Cheng et al.; docs/tracking.md), or by the CV Kalman + GNN baseline (--method gnn).
+line) are associated to the tracks by fuzzy c-means memberships and followed by a
+constant-velocity filter with adaptive process noise (Cheng et al.; docs/tracking.md), or
+by the CV Kalman + GNN baseline (--method gnn).
 Writes /track_points (one row per track per frame) and /tracks (one row per track).
 """
 

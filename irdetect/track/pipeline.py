@@ -21,7 +21,8 @@ METHODS = ("fcm-pmht", "gnn")
 def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bool = False, *,
           method: str = "fcm-pmht", sea_sky: bool = False, band_above: float = 5.0,
           band_below: float = 40.0, suppress_size: int = 15, k: float = 5.0,
-          smooth: float = 1.0, tile: int = 32, min_contrast: float = 0.0, min_area: float = 2.0, max_area: float = 200.0,
+          smooth: float = 1.0, tile: int = 32, min_contrast: float = 0.0,
+          min_area: float = 2.0, max_area: float = 200.0,
           grey_gate: bool = False, min_grey: float = 100.0, max_grey: float = 180.0,
           max_regions: int = 200,
           frame_interval: float = 1.0, q0: float = 1e-3, r: float = 0.5,
@@ -121,8 +122,7 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
             area_scale=area_scale, direction_after=direction_after, min_speed=min_speed,
             max_merged=max_merged, merge_margin=merge_margin, **common)
     region_kw = dict(suppress_size=suppress_size, k=k, smooth=smooth, tile=tile,
-                     min_contrast=min_contrast,
-                     min_area=min_area, max_area=2 * max_area,
+                     min_contrast=min_contrast, min_area=min_area, max_area=2 * max_area,
                      min_grey=min_grey if grey_gate else -np.inf,
                      max_grey=max_grey if grey_gate else np.inf, max_regions=max_regions)
     if sea_sky and (band_above < 0 or band_below < 0):
