@@ -175,8 +175,10 @@ def _subclust(u, x, r, squash, accept, reject, w, mirror, groups, want_labels=Tr
         zp = zm.copy()
         zp[:, 1] = 2 * z[:, 1] - zm[:, 1]
         views += [zm, zp]
-    ii, jj, dd = _pair_graph(z, sep, views, reach, short=len(views) > 1 and (
-        mirror[0, 1] - u[0, 1]) ** 2 / r[1] ** 2 < (2 * reach) ** 2)
+    # a theta range so short (against the radius) that one pair can be near through two
+    # views: each pair keeps its smallest distance (the line-wrap rule)
+    short = len(views) > 1 and (mirror[0, 1] - u[0, 1]) ** 2 / r[1] ** 2 < (2 * reach) ** 2
+    ii, jj, dd = _pair_graph(z, sep, views, reach, short)
     pot = _potentials(ii, jj, dd, w, n, cutoff)
     # neighbour lists of every point (CSR over ii) for the subtraction: -4 d^2 / squash^2
     ptr = np.searchsorted(ii, np.arange(n + 1))
@@ -252,8 +254,7 @@ def _pair_graph(z, sep, views, reach, short):
     through several views keeps its smallest distance when ``short`` (a theta range so
     short against the radius that this can happen); otherwise the views' pairs are
     concatenated, each i's in the order found. Indices are int32 and each view's pairs
-    are converted as they come (the graph is the memory of the clustering: ~100
-    million pairs for 700,000 Hough cells).
+    are converted as they come: the graph is most of the clustering's memory.
     """
     from scipy.spatial import cKDTree
 
