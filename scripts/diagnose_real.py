@@ -45,12 +45,12 @@ from bench_real import REAL, gate_of, load  # noqa: E402
 
 
 class Recorder:
-    """Wraps ``irdetect.pipeline.correlate``: keeps, per window triple, every chain that
+    """Wraps ``irdetect.pipeline.combined.correlate``: keeps, per window triple, every chain that
     passed the motion bound and constant-velocity test with its verification numbers."""
 
     def __init__(self):
         self.triples = []
-        self.original = pipeline.correlate
+        self.original = pipeline.combined.correlate
 
     def __call__(self, p1, p2, p3, step, evidence=None, **kw):
         out = self.original(p1, p2, p3, step, evidence, **kw)
@@ -92,11 +92,11 @@ def diagnose(name, cfg, residual=False):
     frames, truth = load(REAL / name)
     gate = gate_of(name)
     rec = Recorder()
-    pipeline.correlate = rec
+    pipeline.combined.correlate = rec
     try:
         out = pipeline.detect_sequence(frames, cfg)
     finally:
-        pipeline.correlate = rec.original
+        pipeline.combined.correlate = rec.original
     length, step = cfg.combine.length, cfg.combine.step
     starts = window_starts(len(frames), length=length, step=step)
     det, cand = out["detections"], out["candidates"]

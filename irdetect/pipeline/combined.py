@@ -1,0 +1,259 @@
+"""The combined-frame path (Wan & Askar 2008 with irdetect's fast band and verification):
+one window's suppression, combined frames, directional detection and fusion (``front``),
+the correlation of 3 windows (``correlate_windows``) and the candidates that wait for it
+(``Pending``). ``irdetect.pipeline`` alone knows the order in which they run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import asdict
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from irdetect import tables
+from irdetect.combine import combine
+from irdetect.config import ProcessConfig
+from irdetect.correlate import Correlation, correlate
+from irdetect.detect import detect
+from irdetect.fuse import fuse
+from irdetect.pipeline.timing import lap
+from irdetect.suppress import suppress
+from irdetect.verify import DP_LEADS, Evidence, matched_frame, noise_level, standardise
+
+
+def correlate_windows(triple, cc, params: "StageParams", timings: dict | None):
+    """The correlation of 3 pending windows (``correlate`` with their evidence), per band:
+    the paper's band in image coordinates, the fast band's points, tracks and evidence
+    in scene coordinates (image minus the camera's offset). Returns one Correlation
+    whose rows index the windows' whole tables and whose positions are image
+    coordinates."""
+    t0 = time.perf_counter()
+    evidence = evidence_of(triple, cc)
+    parts = [band_correlation(triple, 0, cc.step, evidence, params.correlate)]
+    if params.fast:
+        frames, cam = triple_camera(triple)
+        scene = None if evidence is None else dataclasses.replace(
+            evidence, shift=cam[np.searchsorted(frames, evidence.index)], leads=FAST_LEADS)
+        parts.append(band_correlation(triple, 1, cc.step, scene, params.fast_correlate, cc.length))
+    corr = parts[0] if len(parts) == 1 else Correlation(
+        segments=np.concatenate([c.segments for c in parts]),
+        index=np.concatenate([c.index for c in parts]),
+        positions=np.concatenate([c.positions for c in parts]),
+        significance=np.concatenate([c.significance for c in parts]))
+    lap(timings, "correlate", t0)
+    return corr
+
+
+#: the fast band's merit keeps a target near its position in the window's last frame
+#: (its wide dilations do not let the path's past outweigh the present): the search of
+#: the verification starts 0 and 1 frame of motion ahead of the fused points (0, 0.5, 1,
+#: 2 found the same targets on the simulator at twice the cost)
+FAST_LEADS = (0.0, 1.0)
+
+
+def triple_camera(triple) -> tuple[np.ndarray, np.ndarray]:
+    """(frames (F,), offsets (F, 2)): the camera's offsets of the 3 windows' frames."""
+    frames = np.concatenate([np.arange(p.start, p.start + len(p.camera)) for p in triple])
+    return frames, np.concatenate([p.camera for p in triple])
+
+
+def band_correlation(triple, band: int, step: int, evidence, kwargs, length: int = 0) -> Correlation:
+    """``correlate`` on one band's points of 3 windows. Band 1 is in scene coordinates:
+    its points (the merit's, in the image of each window's last frame) lose that frame's
+    camera offset, and its verified positions get the offset at their report time."""
+    rows = [np.flatnonzero(p.table["band"] == band) for p in triple]
+    tables_ = [p.table[r] for p, r in zip(triple, rows)]
+    if band == 1:
+        for t, p in zip(tables_, triple):
+            t["x"] -= p.camera[length - 1, 0]
+            t["y"] -= p.camera[length - 1, 1]
+    corr = correlate(*tables_, step, evidence, **kwargs)
+    index = np.column_stack([r[corr.index[:, i]] for i, r in enumerate(rows)]) \
+        if len(corr.index) else corr.index
+    positions, segments = corr.positions, corr.segments
+    if band == 1 and len(segments):
+        frames, cam = triple_camera(triple)
+        positions = positions.copy()
+        for i, (p, (fx, fy)) in enumerate(zip(triple, (("x1", "y1"), ("x2", "y2"),
+                                                       ("x3", "y3")))):
+            at = p.start + (length - 1) / 2.0
+            positions[:, i, 0] += np.interp(at, frames, cam[:, 0])
+            positions[:, i, 1] += np.interp(at, frames, cam[:, 1])
+            segments[fx] += p.camera[length - 1, 0]
+            segments[fy] += p.camera[length - 1, 1]
+        # image velocity: the scene's plus the camera's mean motion over the windows
+        span = max(1, frames[-1] - frames[0])
+        segments["vx"] += (cam[-1, 0] - cam[0, 0]) / span
+        segments["vy"] += (cam[-1, 1] - cam[0, 1]) / span
+    return Correlation(segments=segments, index=index, positions=positions,
+                       significance=corr.significance)
+
+
+class StageParams:
+    """The stages' keyword arguments, built once per run (not per window)."""
+
+    def __init__(self, config: ProcessConfig):
+        self.suppress = asdict(config.suppress)
+        self.combine = {**asdict(config.combine), "step": config.combine.length}
+        self.detect = asdict(config.detect)
+        self.fuse = asdict(config.fuse)
+        self.correlate = asdict(config.correlate)
+        # the fast band: the same stages with a wide merit that follows the camera, a
+        # point test on it and chains in scene coordinates (needs the dp projection and
+        # the verification, which controls its loose first stage's false alarms)
+        fast = config.fast
+        self.fast = (fast.radius > 0 and config.combine.projection == "dp"
+                     and config.correlate.verify > 0)
+        self.fast_combine = {**self.combine, "dp_radius": fast.radius}
+        self.fast_detect = {**self.detect, "window": 1, "k": fast.k, "sigma": fast.sigma}
+        self.fast_fuse = {**self.fuse, "extent": fast.extent}
+        self.fast_correlate = {**self.correlate, "max_speed": float(fast.radius),
+                               "max_deviation": fast.max_deviation}
+        # the verification of chains needs the matched residual frames of each window
+        self.matched = config.correlate.verify > 0
+        self.psf = config.combine.dp_smooth
+
+
+def front(block, previous, params: StageParams, timings: dict | None, following=None,
+           camera=None):
+    """One window's suppression, combination, detection and fusion (``following``: the
+    raw frames after the window that the first frames' background looks ahead to;
+    ``camera``: the offsets of previous, block and following).
+
+    Returns (candidates, candidate pixels, matched residual frames (L, H, W) or None).
+    """
+    t = time.perf_counter()
+    residual = suppress(block, previous=previous, following=following, camera=camera,
+                        **params.suppress)
+    t = lap(timings, "suppress", t)
+    presmoothed = params.matched and params.combine["projection"] == "dp" and params.psf > 0
+    if presmoothed:
+        # the dp merit and the matched filter smooth with the same Gaussian: smooth each
+        # residual once, in place, and tell both stages it is done (same values)
+        for r in residual:
+            cv2.GaussianBlur(r, (0, 0), params.psf, dst=r, borderType=cv2.BORDER_REFLECT)
+    done = {"dp_smooth": 0.0} if presmoothed else {}
+    comb = combine(residual, **{**params.combine, **done})[0]
+    fast = None
+    if params.fast:
+        n_prev = 0 if previous is None else len(previous)
+        window_camera = None if camera is None else camera[n_prev:n_prev + len(residual)]
+        fast = combine(residual, window_camera, **{**params.fast_combine, **done})[0]
+    matched = None
+    if params.matched:
+        # the residuals become the matched frames in place (no second window of frames)
+        smooth = 0.0 if presmoothed else params.psf
+        standardise([matched_frame(r, smooth, out=r) for r in residual])
+        matched = residual
+    del residual
+    t = lap(timings, "combine", t)
+    det = detect(comb, **params.detect)
+    det_fast = None if fast is None else detect(fast, **params.fast_detect)
+    t = lap(timings, "detect", t)
+    cand = fuse(det, comb, **params.fuse)
+    if fast is not None:
+        more = fuse(det_fast, fast, **params.fast_fuse)
+        more["band"] = 1
+        cand = np.concatenate([cand, more])
+    lap(timings, "fuse", t)
+    return cand, det.count, matched
+
+
+def evidence_of(pending, cc) -> Evidence | None:
+    """The matched frames of the 3 pending windows, each frame once (windows may overlap)."""
+    if pending[0].matched is None:
+        return None
+    blocks, frames, index = [], [], []
+    for p in pending:
+        # the frames after the last one taken: the window's tail, a block in place
+        first = 0 if not index else max(0, index[-1] + 1 - p.start)
+        if first < len(p.matched):
+            blocks.append(p.matched[first:])
+            frames.extend(p.matched[first:])
+            index.extend(range(p.start + first, p.start + len(p.matched)))
+    # the dp merit's fused point sits near the window's last frame (trailing its target
+    # by some frames: DP_LEADS); other projections' at the window's middle
+    mid = (cc.length - 1) / 2.0
+    dp = cc.projection == "dp"
+    at = cc.length - 1 if dp else mid
+    return Evidence(frames=blocks, index=np.array(index),
+                    times=tuple(p.start + at for p in pending),
+                    report=tuple(p.start + mid for p in pending), sigma=noise_level(frames),
+                    leads=DP_LEADS if dp else (0.0,))
+
+
+class Pending:
+    """Candidates of one combined frame waiting for the segments that may confirm them."""
+
+    def __init__(self, table: np.ndarray, dp_length: int = 0, matched=None, start: int = 0,
+                 tolerance: float = 5.0, camera=None):
+        self.table = table
+        # the camera's offsets (L, 2) of the window's frames
+        self.camera = np.zeros((max(1, dp_length), 2)) if camera is None else camera
+        self.tolerance = tolerance  # verified positions this close are one target
+        self.dp_length = dp_length
+        self.matched = matched      # matched residual frames of the window (or None)
+        self.start = start          # the window's first frame
+        n = len(table)
+        self.vx = np.full(n, np.nan)
+        self.vy = np.full(n, np.nan)
+        self.pos = np.full((n, 2), np.nan)
+        self.seg_score = np.full(n, -np.inf)
+
+    def confirm(self, rows: np.ndarray, segments: np.ndarray, positions=None) -> None:
+        """Mark ``rows`` confirmed; keep the velocity (and verified position at the
+        window's middle, when given) of the best-scoring segment."""
+        if len(rows) == 0:
+            return
+        self.table["confirmed"][rows] = True
+        # several segments may share a point: take them in increasing score so the
+        # best one is written last (a loop over a handful of segments)
+        for s in np.argsort(segments["score"], kind="stable"):
+            r = rows[s]
+            if segments["score"][s] >= self.seg_score[r]:
+                self.seg_score[r] = segments["score"][s]
+                self.vx[r], self.vy[r] = segments["vx"][s], segments["vy"][s]
+                if positions is not None:
+                    self.pos[r] = positions[s]
+
+    def emit(self, segments: np.ndarray) -> dict:
+        c = self.table
+        self._merge_duplicates()
+        keep = c["confirmed"]
+        det = np.zeros(int(keep.sum()), dtype=tables.DETECTION)
+        for name in ("x", "y", "frame_start", "frame_end", "combined_frame", "intensity",
+                     "score", "n_members"):
+            det[name] = c[name][keep]
+        det["vx"], det["vy"] = self.vx[keep], self.vy[keep]
+        if self.dp_length:
+            # the dp merit puts a target at its position in the window's last frame;
+            # report it at the window's middle time like the other projections
+            back = (self.dp_length - 1) / 2.0
+            det["x"] -= det["vx"] * back
+            det["y"] -= det["vy"] * back
+        # a verified segment gives the target's position at the window's middle directly
+        pos = self.pos[keep]
+        ok = np.isfinite(pos[:, 0])
+        det["x"][ok], det["y"][ok] = pos[ok, 0], pos[ok, 1]
+        self.matched = None         # release the frames
+        return {"candidates": c, "detections": det, "segments": segments}
+
+
+    def _merge_duplicates(self) -> None:
+        """One target split into two fused points, each confirmed by a different segment
+        (windows k-2..k and k-1..k+1), is one detection: of two confirmed points whose
+        verified positions lie within ``tolerance`` px, the lower-scoring is unconfirmed."""
+        rows = np.flatnonzero(self.table["confirmed"] & np.isfinite(self.pos[:, 0]))
+        if len(rows) < 2:
+            return
+        pairs = cKDTree(self.pos[rows]).query_pairs(self.tolerance, output_type="ndarray")
+        for a, b in pairs:          # a loop over duplicate pairs (rare)
+            ra, rb = rows[a], rows[b]
+            if not (self.table["confirmed"][ra] and self.table["confirmed"][rb]):
+                continue
+            lose = rb if self.seg_score[ra] >= self.seg_score[rb] else ra
+            self.table["confirmed"][lose] = False

@@ -1,0 +1,78 @@
+"""The window reader: raw frames of one window and the history before it, streamed
+through one reused buffer, and the camera's offsets of every frame read (measured once).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from irdetect.camera import CameraMotion
+from irdetect.errors import InputError
+from irdetect.io.sources import FrameSource
+
+
+class Reader:
+    """Read windows [a, b) with the ``history`` raw frames before a, in the stored dtype.
+
+    Frames go into one reused buffer of ``history + length + block`` frames, read ahead
+    in blocks the storage favours (an HDF5 chunk: a compressed chunk read in pieces is
+    decompressed once per piece), so memory is bounded whatever the sequence length.
+    The arrays returned are views of the buffer, valid until the next ``read``.
+    """
+
+    #: largest read-ahead in bytes (a 64-frame chunk of 640x512 uint16 frames is 42 MB)
+    MAX_BLOCK_BYTES = 48 << 20
+
+    def __init__(self, frames, history: int, length: int, ahead: int = 0,
+                 camera: bool = True):
+        self.frames = frames
+        self.history = history
+        n, h, w = (int(v) for v in frames.shape)
+        self.n = n
+        # the camera's offsets of every frame read, measured once, in order (zeros when
+        # the configuration takes the camera to be still)
+        self.motion = CameraMotion((h, w)) if camera else None
+        self.offsets = np.zeros((n, 2))
+        self.measured = 0           # frames [0, measured) have offsets
+        frame_bytes = h * w * np.dtype(frames.dtype).itemsize
+        chunk = max(1, int(getattr(frames, "block_frames", 1)))
+        self.block = max(length, min(chunk, max(1, self.MAX_BLOCK_BYTES // frame_bytes)))
+        # the first window may also read ``ahead`` frames after it (it has no history)
+        size = max(history + length + self.block, length + ahead)
+        self.buf = np.empty((min(n, size), h, w), frames.dtype)
+        self.lo = self.hi = 0     # the buffer holds raw frames [lo, hi)
+
+    def read(self, a: int, b: int):
+        lo = max(0, a - self.history)
+        if not self.lo <= lo <= self.hi:
+            self.lo = self.hi = lo
+        if b > self.hi:
+            keep = self.hi - lo
+            if lo > self.lo:            # drop frames before lo: move the rest to the front
+                self.buf[:keep] = self.buf[lo - self.lo:self.hi - self.lo]
+            self.lo = lo
+            stop = min(self.n, max(b, self.hi + self.block), lo + len(self.buf))
+            self._fill(self.hi, stop, self.buf[keep:keep + stop - self.hi])
+            self.hi = stop
+        data = self.buf[lo - self.lo:b - self.lo]
+        return data[a - lo:], data[:a - lo]
+
+    def _fill(self, start: int, stop: int, out: np.ndarray) -> None:
+        if hasattr(self.frames, "read_into"):
+            self.frames.read_into(start, stop, out)
+        else:
+            out[...] = self.frames[start:stop]
+        # a file's frames must be finite (docs/format.md; arrays given to detect_sequence
+        # may hold NaN, which finds nothing there); NaN or inf anywhere makes the sum
+        # non-finite: one pass, no mask allocated
+        if (out.dtype.kind == "f" and isinstance(self.frames, FrameSource)
+                and not np.isfinite(np.sum(out, dtype=np.float64))):
+            raise InputError(f"frames {start}..{stop - 1} hold NaN or inf values",
+                             getattr(self.frames, "path", None))
+        if self.motion is not None and stop > self.measured:
+            # frames skipped (windows with gaps) keep the last offset
+            first = max(start, self.measured)
+            self.offsets[self.measured:first] = self.offsets[self.measured - 1] \
+                if self.measured else 0.0
+            self.offsets[first:stop] = self.motion.update(out[first - start:])
+            self.measured = stop
