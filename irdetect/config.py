@@ -109,6 +109,23 @@ class FastConfig:
     max_deviation: float = 20.0
 
 
+@dataclass(frozen=True)
+class FrameConfig:
+    """The per-frame path (beyond the papers; docs/detection.md, "The per-frame path"):
+    each frame's CFAR peaks (``irdetect.peaks``) initiated like radar scans in scene
+    coordinates (``irdetect.pipeline.perframe.frame_tracks``), fused with the
+    combined-frame path's detections (``irdetect.pipeline.fusion``). ``enabled = false``
+    runs the combined-frame path alone (the paper's design)."""
+
+    enabled: bool = True
+    false_rate: float = 1.0
+    sigma: float = 1.0
+    max_speed: float = 16.0
+    false_tracks: float = 0.01
+    confirm_m: int = 3
+    confirm_n: int = 4
+
+
 # --- track initiation (zhang2010, liang2015; issues 4, 5) -----------------------------
 
 @dataclass(frozen=True)
@@ -205,6 +222,7 @@ class ProcessConfig:
     fuse: FuseConfig = field(default_factory=FuseConfig)
     correlate: CorrelateConfig = field(default_factory=CorrelateConfig)
     fast: FastConfig = field(default_factory=FastConfig)
+    frame: FrameConfig = field(default_factory=FrameConfig)
     initiate: InitiateConfig = field(default_factory=InitiateConfig)
     track: TrackConfig = field(default_factory=TrackConfig)
 

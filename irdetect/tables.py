@@ -16,11 +16,37 @@ TRUTH = np.dtype([
     ("frame", "<i8"), ("target", "<i8"), ("x", "<f8"), ("y", "<f8"), ("amplitude", "<f8"),
 ])
 
-#: Confirmed point detections, one row per confirmed fused point per combined frame.
+#: Confirmed point detections, one row per target per combined frame (window). ``path``
+#: says which path found it (``PATH_COMBINED``, ``PATH_FRAME`` or both bits); ``snr`` is the
+#: score both paths share: the local SNR per frame, in matched-filter sigmas, along the
+#: detection's track over the window; ``support`` the share of the window's frames with a
+#: per-frame peak on that track (``irdetect.pipeline.fusion``).
 DETECTION = np.dtype([
     ("x", "<f8"), ("y", "<f8"), ("frame_start", "<i8"), ("frame_end", "<i8"),
     ("combined_frame", "<i8"), ("intensity", "<f8"), ("score", "<f8"),
     ("vx", "<f8"), ("vy", "<f8"), ("n_members", "<i4"),
+    ("path", "<i1"), ("snr", "<f8"), ("support", "<f8"),
+])
+
+#: ``path`` bits of detections and tracks: the combined-frame path, the per-frame path.
+PATH_COMBINED = 1
+PATH_FRAME = 2
+
+#: Per-frame peaks (``irdetect.peaks``): frame, sub-pixel position (x = column, y = row,
+#: px) and the local SNR in matched-filter sigmas.
+FRAME_DETECTION = np.dtype([("frame", "<i8"), ("x", "<f8"), ("y", "<f8"), ("score", "<f8")])
+
+#: Tracks of the per-frame path, one per window of frames (``irdetect.pipeline.perframe``):
+#: position at the window's middle frame in the image (x, y px), image velocity (vx, vy
+#: px/frame), scene velocity (svx, svy), hits, ``score`` the median local SNR of the hits,
+#: ``expectation`` the chains as good that clutter of the local density would make,
+#: ``moving`` (it moves against the scene by more than its position error) and ``kept``
+#: (it passed every test of the operating point).
+FRAME_TRACK = np.dtype([
+    ("combined_frame", "<i8"), ("frame_start", "<i8"), ("frame_end", "<i8"),
+    ("x", "<f8"), ("y", "<f8"), ("vx", "<f8"), ("vy", "<f8"), ("svx", "<f8"), ("svy", "<f8"),
+    ("n_points", "<i8"), ("score", "<f8"), ("expectation", "<f8"), ("moving", "?"),
+    ("kept", "?"),
 ])
 
 #: Every fused point before correlation; ``confirmed`` marks those kept; ``band`` the
@@ -46,7 +72,7 @@ SEGMENT = np.dtype([
 TRACK = np.dtype([
     ("track_id", "<i8"), ("rho", "<f8"), ("theta", "<f8"), ("vx", "<f8"), ("vy", "<f8"),
     ("frame_start", "<i8"), ("frame_end", "<i8"), ("n_points", "<i8"), ("score", "<f8"),
-    ("x0", "<f8"), ("y0", "<f8"), ("scene", "?"),
+    ("x0", "<f8"), ("y0", "<f8"), ("scene", "?"), ("path", "<i1"),
 ])
 
 #: The camera's image motion, one row per frame: a scene point at (x, y) in frame 0 is at
@@ -77,8 +103,9 @@ TRACK_POINT = np.dtype([
 
 BY_NAME = {
     "truth": TRUTH, "detections": DETECTION, "candidates": CANDIDATE, "segments": SEGMENT,
-    "tracks": TRACK, "scans": SCAN, "scan_truth": SCAN_TRUTH, "scan_tracks": SCAN_TRACK,
-    "track_points": TRACK_POINT, "camera": CAMERA,
+    "tracks": TRACK, "combined_detections": DETECTION, "scans": SCAN, "scan_truth": SCAN_TRUTH, "scan_tracks": SCAN_TRACK,
+    "track_points": TRACK_POINT, "camera": CAMERA, "frame_detections": FRAME_DETECTION,
+    "frame_tracks": FRAME_TRACK,
 }
 
 

@@ -42,7 +42,7 @@ def _peak_bytes(path, out, config=None) -> tuple[int, dict]:
             counts["frames"] = len(src)
             for chunk in iter_results(src, config):
                 counts["combined_frames"] += 1
-                counts["detections"] += len(chunk["detections"])
+                counts["detections"] += len(chunk["combined_detections"])
                 for name, rows in chunk.items():
                     res.append(name, rows)
         _, peak = tracemalloc.get_traced_memory()
@@ -103,9 +103,9 @@ def test_threads_over_windows_give_the_same_tables(scene, workers):
     threaded = list(iter_results(frames, workers=workers))
     assert len(serial) == len(threaded) == 84 // 12
     for a, b in zip(serial, threaded):
-        for name in ("candidates", "detections", "segments"):
+        for name in ("candidates", "combined_detections", "segments", "frame_detections"):
             assert a[name].tobytes() == b[name].tobytes()
-    assert sum(len(a["detections"]) for a in serial) > 0
+    assert sum(len(a["combined_detections"]) for a in serial) > 0
     assert sum(len(a["segments"]) for a in serial) > 0
 
 
@@ -113,7 +113,8 @@ def test_timings_name_every_stage(tmp_path):
     frames, _ = simulate("wan2008", rng=2, n_frames=48)
     timings = {}
     list(iter_results(frames, timings=timings))
-    assert set(timings) == {"read", "suppress", "combine", "detect", "fuse", "correlate"}
+    assert set(timings) == {"read", "suppress", "combine", "frame", "detect", "fuse",
+                            "correlate"}
     assert all(v >= 0 for v in timings.values())
     with pytest.raises(ValueError, match="workers"):
         list(iter_results(frames, workers=0))

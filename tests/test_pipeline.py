@@ -206,12 +206,18 @@ def test_a_fast_target_is_found_by_the_fast_band(seed):
     m, out = _scene_score(seed, snr=5.0, speed=[4.0, 4.0])
     assert m["targets"] == 6 and m["detected"] >= 5 and m["false"] <= 1
     assert (out["candidates"]["band"][out["candidates"]["confirmed"]] == 1).any()
-    without = dataclasses.replace(ProcessConfig(), fast=dataclasses.replace(
-        ProcessConfig().fast, radius=0))
+    # the paper's band alone misses them; the per-frame path alone finds them too
+    config = ProcessConfig()
+    without = dataclasses.replace(config, fast=dataclasses.replace(config.fast, radius=0),
+                                  frame=dataclasses.replace(config.frame, enabled=False))
     frames, truth = simulate("wan2008", rng=seed, n_frames=36, height=200, width=240,
                              n_targets=2, directions=[], margin=4.0, snr=5.0,
                              speed=[4.0, 4.0])
     assert _score(detect_sequence(frames, without), frames, truth)["detected"] <= 2
+    frame_only = dataclasses.replace(without, frame=config.frame)
+    out = detect_sequence(frames, frame_only)
+    assert _score(out, frames, truth)["detected"] >= 5
+    assert (out["detections"]["path"] & 2).all()
 
 
 PANNING = dict(snr=5.0, speed=[0.5, 1.5], camera_pan=[1.6, -1.2], camera_jitter=0.5,

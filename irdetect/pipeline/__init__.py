@@ -30,13 +30,24 @@ from irdetect.combine import frames_needed, window_starts
 from irdetect.config import ProcessConfig, to_json
 from irdetect.errors import InputError, refused_settings
 from irdetect.pipeline.combined import Pending, StageParams, correlate_windows, front
-from irdetect.pipeline.fusion import initiate_tracks
+from irdetect.pipeline.fusion import finish, initiate_tracks
 from irdetect.pipeline.reader import Reader
 from irdetect.pipeline.timing import Ready, lap
 from irdetect.suppress import future_frames, past_frames
 
+__all__ = ["CHUNK_TABLES", "N_CORRELATE", "check_config", "check_frames", "detect_sequence",
+           "finish", "fit_config", "initiate_tracks", "iter_results", "min_frames",
+           "process_file"]
+
 #: the names tests and scripts used before ``irdetect.pipeline`` became a package
 _Reader = Reader
+
+#: the tables ``iter_results`` yields per window (``finish`` makes the run's final
+#: /detections, /frame_tracks and /tracks from them)
+CHUNK_TABLES = ("candidates", "combined_detections", "segments", "camera", "frame_detections")
+#: a per-frame peak within this many position sigmas of a combined-frame detection's track
+#: supports it (the per-frame path's gate)
+SUPPORT_GATE = 3.0
 
 log = logging.getLogger(__name__)
 
@@ -192,16 +203,19 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
             p.confirm(corr.index[:, i], segments, corr.positions[:, i])
         first += 1
         done = pending.popleft()
-        return with_camera(done.emit(segments), done.start + cc.length)
+        return with_camera(done.emit(segments), done.start + cc.length, done.peaks)
 
     camera_done = 0              # frames whose /camera rows were emitted
 
-    def with_camera(chunk: dict, end: int) -> dict:
-        """The chunk of one window with the /camera rows of its frames up to ``end``."""
+    def with_camera(chunk: dict, end: int, peaks=None) -> dict:
+        """The chunk of one window with the /camera rows and the per-frame peaks of its
+        frames up to ``end`` not given before (windows may overlap)."""
         nonlocal camera_done
         f = np.arange(camera_done, max(end, camera_done))
         chunk["camera"] = tables.from_columns(tables.CAMERA, frame=f, dx=reader.offsets[f, 0],
                                               dy=reader.offsets[f, 1])
+        chunk["frame_detections"] = (tables.empty(tables.FRAME_DETECTION) if peaks is None
+                                     else peaks[peaks["frame"] >= camera_done])
         camera_done = end
         return chunk
 
@@ -211,12 +225,15 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
             while submitted < len(starts) and len(fronts) < (1 if pool is None else workers):
                 fronts.append(submit(submitted))
                 submitted += 1
-            cand, n_pixels, matched = fronts.popleft().result()
+            cand, n_pixels, matched, peaks = fronts.popleft().result()
             cand["frame_start"], cand["frame_end"] = s, s + cc.length - 1
             cand["combined_frame"] = k
+            if peaks is not None:
+                peaks["frame"] += s
             pending.append(Pending(cand, cc.length if cc.projection == "dp" else 0,
                                     matched, int(s), config.correlate.tolerance,
-                                    reader.offsets[s:s + cc.length].copy()))
+                                    reader.offsets[s:s + cc.length].copy(), peaks,
+                                    SUPPORT_GATE * config.frame.sigma))
             log.debug("combined frame %d (frames %d-%d): %d candidate pixels, %d fused points",
                       k, s, s + cc.length - 1, n_pixels, len(cand))
             if k >= N_CORRELATE - 1:
@@ -236,7 +253,8 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
             yield take()
         while pending:
             done = pending.popleft()
-            yield with_camera(done.emit(tables.empty(tables.SEGMENT)), done.start + cc.length)
+            yield with_camera(done.emit(tables.empty(tables.SEGMENT)), done.start + cc.length,
+                              done.peaks)
     finally:
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
@@ -271,14 +289,15 @@ def detect_sequence(frames, config: ProcessConfig | None = None, *,
     True
     """
     config = config or ProcessConfig()
-    parts: dict[str, list] = {"candidates": [], "detections": [], "segments": [],
-                              "camera": []}
+    parts: dict[str, list] = {name: [] for name in CHUNK_TABLES}
     for chunk in iter_results(frames, config, progress=progress, workers=workers):
         for name, rows in chunk.items():
             parts[name].append(rows)
-    out = {name: (np.concatenate(rows) if rows else tables.empty(name))
+    out = {name: (np.concatenate(rows) if rows else tables.empty(tables.BY_NAME[name]))
            for name, rows in parts.items()}
-    out["tracks"] = initiate_tracks(out["detections"], config, out["camera"])
+    run = fit_config(config, len(frames))
+    out.update(finish(out["combined_detections"], out["frame_detections"], out["camera"],
+                      run, n_frames=len(frames), shape=tuple(frames.shape[1:])))
     return out
 
 
@@ -407,7 +426,8 @@ def process_file(input, output, config: ProcessConfig | None = None, *, dataset=
             attrs["configured_length"] = config.combine.length
             log.info("%d frames: combined frames of %d frames instead of %d (a short sequence)",
                      n_frames, run.combine.length, config.combine.length)
-        detections, camera = [], []
+        # the tables the fusion needs at the end (small: points, not frames)
+        held = {name: [] for name in ("combined_detections", "frame_detections", "camera")}
         with ResultsWriter(output, force=force, attrs=attrs, inputs=(input,)) as out:
             n_combined = 0
             for chunk in iter_results(src, config, progress=progress, workers=workers,
@@ -418,15 +438,19 @@ def process_file(input, output, config: ProcessConfig | None = None, *, dataset=
                     out.append(name, rows)
                     if name in counts:
                         counts[name] += len(rows)
-                detections.append(chunk["detections"])
-                camera.append(chunk["camera"])
+                    if name in held:
+                        held[name].append(rows)
                 lap(timings, "write", t)
             t = time.perf_counter()
-            dets = np.concatenate(detections) if detections else tables.empty(tables.DETECTION)
-            tracks = initiate_tracks(dets, config, np.concatenate(camera) if camera
-                                     else tables.empty(tables.CAMERA))
+            held = {name: np.concatenate(rows) if rows else tables.empty(tables.BY_NAME[name])
+                    for name, rows in held.items()}
+            final = finish(held["combined_detections"], held["frame_detections"],
+                           held["camera"], run, n_frames=n_frames, shape=(height, width))
             t = lap(timings, "initiate", t)
-            out.write("tracks", tracks)
+            for name, rows in final.items():
+                out.write(name, rows)
+            tracks = final["tracks"]
+            counts["detections"] = len(final["detections"])
             out.attrs["n_combined"] = n_combined
         lap(timings, "write", t)
     seconds = time.perf_counter() - t0

@@ -20,6 +20,8 @@ from irdetect.config import ProcessConfig
 from irdetect.correlate import Correlation, correlate
 from irdetect.detect import detect
 from irdetect.fuse import fuse
+from irdetect.peaks import frame_level, frame_peaks
+from irdetect.pipeline.fusion import along_track
 from irdetect.pipeline.timing import lap
 from irdetect.suppress import suppress
 from irdetect.verify import DP_LEADS, Evidence, matched_frame, noise_level, standardise
@@ -113,9 +115,13 @@ class StageParams:
         self.fast_fuse = {**self.fuse, "extent": fast.extent}
         self.fast_correlate = {**self.correlate, "max_speed": float(fast.radius),
                                "max_deviation": fast.max_deviation}
+        # the per-frame path finds its peaks in the same matched frames
+        self.frame = config.frame.enabled
+        self.frame_rate = config.frame.false_rate
         # the verification of chains needs the matched residual frames of each window
-        self.matched = config.correlate.verify > 0
+        self.matched = config.correlate.verify > 0 or self.frame
         self.psf = config.combine.dp_smooth
+
 
 
 def front(block, previous, params: StageParams, timings: dict | None, following=None,
@@ -124,7 +130,9 @@ def front(block, previous, params: StageParams, timings: dict | None, following=
     raw frames after the window that the first frames' background looks ahead to;
     ``camera``: the offsets of previous, block and following).
 
-    Returns (candidates, candidate pixels, matched residual frames (L, H, W) or None).
+    Returns (candidates, candidate pixels, matched residual frames (L, H, W) or None,
+    the per-frame path's peaks (``tables.FRAME_DETECTION``, frames counted from the
+    window's first) or None).
     """
     t = time.perf_counter()
     residual = suppress(block, previous=previous, following=following, camera=camera,
@@ -151,6 +159,10 @@ def front(block, previous, params: StageParams, timings: dict | None, following=
         matched = residual
     del residual
     t = lap(timings, "combine", t)
+    peaks = None
+    if params.frame:
+        peaks = frame_peaks(matched, frame_level(matched.shape[1:], params.frame_rate))
+        t = lap(timings, "frame", t)
     det = detect(comb, **params.detect)
     det_fast = None if fast is None else detect(fast, **params.fast_detect)
     t = lap(timings, "detect", t)
@@ -160,7 +172,7 @@ def front(block, previous, params: StageParams, timings: dict | None, following=
         more["band"] = 1
         cand = np.concatenate([cand, more])
     lap(timings, "fuse", t)
-    return cand, det.count, matched
+    return cand, det.count, matched, peaks
 
 
 def evidence_of(pending, cc) -> Evidence | None:
@@ -190,8 +202,10 @@ class Pending:
     """Candidates of one combined frame waiting for the segments that may confirm them."""
 
     def __init__(self, table: np.ndarray, dp_length: int = 0, matched=None, start: int = 0,
-                 tolerance: float = 5.0, camera=None):
+                 tolerance: float = 5.0, camera=None, peaks=None, radius: float = 3.0):
         self.table = table
+        self.peaks = peaks          # the per-frame path's peaks of the window (or None)
+        self.radius = radius        # a peak this close to a detection's track supports it
         # the camera's offsets (L, 2) of the window's frames
         self.camera = np.zeros((max(1, dp_length), 2)) if camera is None else camera
         self.tolerance = tolerance  # verified positions this close are one target
@@ -239,8 +253,12 @@ class Pending:
         pos = self.pos[keep]
         ok = np.isfinite(pos[:, 0])
         det["x"][ok], det["y"][ok] = pos[ok, 0], pos[ok, 1]
+        det["path"] = tables.PATH_COMBINED
+        if self.matched is not None:
+            det["snr"], det["support"] = along_track(det, self.matched, self.start,
+                                                     self.peaks, self.radius)
         self.matched = None         # release the frames
-        return {"candidates": c, "detections": det, "segments": segments}
+        return {"candidates": c, "combined_detections": det, "segments": segments}
 
 
     def _merge_duplicates(self) -> None:

@@ -1,15 +1,150 @@
-"""The fusion of the two paths' detections and the track initiation on them.
+"""The fusion of the two paths: one detection per target per window, each saying which
+path found it, and the track initiation on them.
 
-(filled in below: ``initiate_tracks`` is the hand-off to Hough + subtractive clustering.)
+The combined-frame path (``irdetect.pipeline.combined``) integrates 12 frames and sees
+targets too dim for any single frame; the per-frame path (``irdetect.pipeline.perframe``)
+follows targets too fast for a combined frame. Per window (``fuse_paths``):
+
+* every combined-frame detection is kept, with its track's local SNR per frame (``snr``:
+  the matched, standardised residual along the track over the window) and the share of
+  the window's frames with a per-frame peak on it (``support``), so both paths' rows carry
+  the same score;
+* every kept per-frame track gives a detection at the window's middle frame;
+* a combined-frame and a per-frame detection within ``MERGE_PX`` of each other are one
+  target (``path`` both bits; the per-frame position, measured frame by frame, is kept).
+
+Then Hough + subtractive clustering initiates the tracks on the fused detections
+(``initiate_tracks``, the papers' hand-off), each track's ``path`` the union of its
+detections'. Coordinates: x = column, y = row, px; time in frames.
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict
 
+import cv2
 import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
 
+from irdetect import tables
 from irdetect.config import ProcessConfig
+
+_NEIGHBOURS = np.ones((3, 3), np.uint8)
+
+#: a detection of one path and one of the other this close (px) in a window are one target
+#: (two position errors of the per-frame path's 3-sigma gate apart at sigma 1 px)
+MERGE_PX = 6.0
+
+
+def along_track(det: np.ndarray, matched, start: int, peaks, radius: float):
+    """Local SNR per frame and per-frame support of detections along their tracks.
+
+    Parameters
+    ----------
+    det : structured ndarray
+        ``tables.DETECTION`` rows of one window: position (x, y px) at the window's
+        middle frame, image velocity (vx, vy px/frame; NaN taken as 0).
+    matched : ndarray of shape (L, H, W)
+        The window's matched, standardised frames (frames start .. start + L - 1).
+    start : int
+        The window's first frame.
+    peaks : structured ndarray or None
+        ``tables.FRAME_DETECTION`` rows of the window (None: support NaN).
+    radius : float
+        A peak within ``radius`` px of the track's position in its frame supports it.
+
+    Returns
+    -------
+    snr, support : ndarray of shape (N,)
+        Mean over the L frames of the largest matched value in the 3 x 3 pixels about
+        the track's position, and the share of the L frames with a peak within
+        ``radius``.
+    """
+    n, (L, h, w) = len(det), matched.shape
+    if not n:
+        return np.zeros(0), np.zeros(0)
+    t = np.arange(L) - (L - 1) / 2.0
+    vx, vy = np.nan_to_num(det["vx"]), np.nan_to_num(det["vy"])
+    x = det["x"][:, None] + vx[:, None] * t[None]                          # (N, L)
+    y = det["y"][:, None] + vy[:, None] * t[None]
+    col = np.clip(np.rint(x), 0, w - 1).astype(np.intp)
+    row = np.clip(np.rint(y), 0, h - 1).astype(np.intp)
+    # the largest value of the 3 x 3 pixels about the track: a track 1 px off the
+    # target's peak (the combined frame's position error) still reads its SNR
+    near = np.stack([cv2.dilate(f, _NEIGHBOURS) for f in matched])
+    snr = near[np.arange(L)[None], row, col].mean(axis=1)
+    if peaks is None:
+        return snr, np.full(n, np.nan)
+    hit = np.zeros((n, L), bool)
+    for i in range(L):                   # a loop over the window's frames
+        p = peaks[peaks["frame"] == start + i]
+        if len(p):
+            d, _ = cKDTree(np.column_stack([p["x"], p["y"]])).query(
+                np.column_stack([x[:, i], y[:, i]]), distance_upper_bound=radius)
+            hit[:, i] = np.isfinite(d)
+    return snr, hit.mean(axis=1)
+
+
+def fuse_paths(combined: np.ndarray, frame_tracks: np.ndarray) -> np.ndarray:
+    """One detection per target per window from both paths (module notes).
+
+    Parameters
+    ----------
+    combined : structured ndarray
+        The combined-frame path's ``tables.DETECTION`` rows.
+    frame_tracks : structured ndarray
+        ``tables.FRAME_TRACK`` rows; those ``kept`` become detections.
+
+    Returns
+    -------
+    structured ndarray
+        ``tables.DETECTION`` rows in window order, ``path`` the paths that found each.
+    """
+    comb = combined.copy()
+    ft = frame_tracks[frame_tracks["kept"]]
+    frame = tables.from_columns(
+        tables.DETECTION, x=ft["x"], y=ft["y"], frame_start=ft["frame_start"],
+        frame_end=ft["frame_end"], combined_frame=ft["combined_frame"], intensity=ft["score"],
+        score=ft["score"], vx=ft["vx"], vy=ft["vy"], n_members=ft["n_points"],
+        path=np.full(len(ft), tables.PATH_FRAME, np.int8), snr=ft["score"],
+        support=ft["n_points"] / np.maximum(1, ft["frame_end"] - ft["frame_start"] + 1))
+    # a combined detection near a per-frame one of its window is that target: one row
+    # (pairs one to one, nearest first, so two targets side by side stay two)
+    same = np.zeros(len(comb), bool)
+    for k in np.unique(frame["combined_frame"]):        # a loop over windows
+        ci = np.flatnonzero(comb["combined_frame"] == k)
+        fi = np.flatnonzero(frame["combined_frame"] == k)
+        if not len(ci):
+            continue
+        d = np.hypot(frame["x"][fi, None] - comb["x"][None, ci],
+                     frame["y"][fi, None] - comb["y"][None, ci])
+        rows, cols = linear_sum_assignment(np.where(d <= MERGE_PX, d, 1e9))
+        ok = d[rows, cols] <= MERGE_PX
+        f, c = fi[rows[ok]], ci[cols[ok]]
+        frame["path"][f] |= tables.PATH_COMBINED
+        frame["snr"][f] = np.fmax(frame["snr"][f], comb["snr"][c])
+        same[c] = True
+    out = np.concatenate([comb[~same], frame])
+    return out[np.argsort(out["combined_frame"], kind="stable")]
+
+
+def track_paths(tracks: np.ndarray, detections: np.ndarray, camera, gate: float) -> np.ndarray:
+    """The union of the ``path`` bits of the detections each track holds (those of its
+    span within ``gate`` px of its positions); int8 of shape (n_tracks,)."""
+    from irdetect.initiate import track_positions
+
+    out = np.zeros(len(tracks), np.int8)
+    if not len(tracks) or not len(detections):
+        return out
+    t = 0.5 * (detections["frame_start"] + detections["frame_end"])
+    pos = track_positions(tracks, t, camera)                              # (n, d, 2)
+    dist = np.hypot(pos[..., 0] - detections["x"][None], pos[..., 1] - detections["y"][None])
+    inside = (t[None] >= tracks["frame_start"][:, None]) & (t[None] <= tracks["frame_end"][:, None])
+    held = inside & (dist <= gate)
+    for bit in (tables.PATH_COMBINED, tables.PATH_FRAME):
+        out |= np.where((held & ((detections["path"] & bit) > 0)[None]).any(1), bit, 0).astype(np.int8)
+    return out
 
 
 def initiate_tracks(detections: np.ndarray, config: ProcessConfig,
@@ -81,3 +216,49 @@ def _distinct_tracks(tracks, detections, camera, gate: float) -> np.ndarray:
             continue
         kept.append(int(i))
     return np.sort(np.array(kept, dtype=np.int64))
+
+
+def finish(combined: np.ndarray, peaks: np.ndarray, camera: np.ndarray,
+           config: ProcessConfig, *, n_frames: int, shape: tuple[int, int]) -> dict:
+    """The run's final tables from what the windows gave: the per-frame path's tracks, the
+    fused detections and the tracks initiated on them.
+
+    Parameters
+    ----------
+    combined : structured ndarray
+        The combined-frame path's ``tables.DETECTION`` rows of every window.
+    peaks : structured ndarray
+        The per-frame path's ``tables.FRAME_DETECTION`` rows of every frame.
+    camera : structured ndarray
+        ``tables.CAMERA`` rows, one per frame.
+    config : ProcessConfig
+        The configuration the run used (``fit_config``'s, for short sequences).
+    n_frames : int
+    shape : (int, int)
+        Frame (H, W).
+
+    Returns
+    -------
+    dict
+        ``frame_tracks`` (``tables.FRAME_TRACK``), ``detections`` (``tables.DETECTION``)
+        and ``tracks`` (``tables.TRACK``, ``path`` set).
+    """
+    from irdetect.combine import window_starts
+    from irdetect.peaks import frame_level
+    from irdetect.pipeline.perframe import frame_tracks
+
+    fc, cc = config.frame, config.combine
+    if fc.enabled:
+        level = frame_level(shape, fc.false_rate)
+        ft = frame_tracks(peaks, camera, window_starts(n_frames, length=cc.length, step=cc.step),
+                          cc.length, shape=shape, n_frames=n_frames, level=level,
+                          false_rate=fc.false_rate, sigma=fc.sigma, max_speed=fc.max_speed,
+                          false_tracks=fc.false_tracks,
+                          confirm_m=fc.confirm_m, confirm_n=fc.confirm_n)
+        detections = fuse_paths(combined, ft)
+    else:
+        ft, detections = tables.empty(tables.FRAME_TRACK), combined
+    tracks = initiate_tracks(detections, config, camera)
+    tracks["path"] = track_paths(tracks, detections, camera,
+                                 config.initiate.gate * config.initiate.sigma)
+    return {"frame_tracks": ft, "detections": detections, "tracks": tracks}
