@@ -104,6 +104,55 @@ class FrameSource:
         return f"{type(self).__name__}({self.path!r}, shape={self.shape}, dtype={self.dtype})"
 
 
+#: the largest magnitude the stages compute with (they work in float32)
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def check_values(frames: np.ndarray, start: int, path, *, limit: float | None = FLOAT32_MAX
+                 ) -> None:
+    """Refuse floating-point frames holding NaN or inf, or values beyond ``limit``.
+
+    Frames of a file must be finite (docs/format.md). The test is one pass with numpy's
+    floating-point warnings off (``PYTHONWARNINGS=default`` must not print them before the
+    error line): for float32 frames a float64 sum, which NaN or inf anywhere makes
+    non-finite and no finite float32 value overflows; for float64 frames their min and
+    max, which must lie within +-``limit`` (the stages cast to float32: a larger value
+    would overflow there).
+
+    Parameters
+    ----------
+    frames : ndarray of shape (n, H, W)
+        Frames ``start .. start + n - 1``; integer frames always pass.
+    start : int
+        The first frame's index, for the message.
+    path : str or os.PathLike or None
+        The file, named in the message.
+    limit : float or None
+        Largest magnitude allowed (float32's by default); None: only NaN and inf fail.
+
+    Raises
+    ------
+    InputError
+        "frames A..B hold NaN or inf values", or values beyond the limit.
+    """
+    if frames.dtype.kind != "f" or frames.size == 0:
+        return
+    with np.errstate(all="ignore"):
+        if limit is None or frames.dtype.itemsize <= 4:
+            ok = bool(np.isfinite(np.sum(frames, dtype=np.float64)))
+        else:                   # NaN fails the comparisons
+            ok = bool(-limit <= np.min(frames) and np.max(frames) <= limit)
+        if ok:
+            return
+        where = f"frames {start}..{start + len(frames) - 1}"
+        if not np.isfinite(frames).all():
+            raise InputError(f"{where} hold NaN or inf values", path)
+    if limit is None:           # finite float64 values whose sum overflowed
+        return
+    raise InputError(f"{where} hold values beyond +-{limit:.3g} (float32's range, in which "
+                     "irdetect computes)", path)
+
+
 def _check_stack(path, shape, dtype) -> None:
     if len(shape) != 3:
         raise InputError(f"frames must be 3-D (T, H, W), got {len(shape)}-D shape {shape}", path)
