@@ -86,7 +86,9 @@ def _memory_cap(extra: int):
     side, a caller's thread pool); there the dry run runs uncapped."""
     import threading
 
-    if threading.active_count() > 1:
+    others = [t for t in threading.enumerate() if t is not threading.current_thread()
+              and t.name != "irdetect-parent-watch"]       # a batch worker's idle watch
+    if others:
         yield
         return
     soft, hard = resource.getrlimit(resource.RLIMIT_AS)
