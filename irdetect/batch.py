@@ -532,6 +532,10 @@ def write_summary(report: BatchReport) -> tuple[Path, Path]:
 
 def _write_text(path: Path, text: str) -> None:
     # not mkstemp: its 0600 mode would hide the summary from the rest of a shared cluster
+    for old in path.parent.glob(f".{glob.escape(path.name)}.*.tmp"):
+        pid = old.name[len(path.name) + 2:].split(".")[0]
+        if pid.isdigit() and not _alive(int(pid)):      # a batch killed while it wrote
+            old.unlink(missing_ok=True)
     tmp = path.parent / f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp"
     try:
         with open(tmp, "x", encoding="utf-8") as fh:
@@ -691,15 +695,52 @@ def _mp_context():
     return multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
 
 
-def _init_worker(threads: int) -> None:
+def _init_worker(threads: int, parent: int | None = None) -> None:
     import cv2
     cv2.setNumThreads(threads)
+    if parent is not None:
+        import threading
+        watch = threading.Thread(target=_watch_parent, args=(parent,), daemon=True,
+                                 name=WATCH_THREAD)
+        watch.start()
+
+
+#: the name of the worker's thread that watches the batch's process (it allocates nothing,
+#: so ``irdetect.errors`` does not count it as a thread another allocation could hurt)
+WATCH_THREAD = "irdetect-parent-watch"
+
+
+def _watch_parent(pid: int, every: float = 0.2) -> None:
+    """End this worker when the batch's process ``pid`` is gone (killed with SIGKILL, it
+    cannot tell its pool: the workers, children of the forkserver, waited forever on the
+    task queue, and kept the forkserver and the resource tracker alive with them). A
+    write in progress leaves its temporary and lock, which the next run removes."""
+    while _alive(pid):
+        time.sleep(every)
+    os._exit(1)
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (a zombie, dead but not yet reaped, does not)."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            return fh.read().rsplit(b")", 1)[1].split()[0] != b"Z"
+    except FileNotFoundError:
+        return False
+    except OSError:                            # no /proc: ask the kernel
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        except PermissionError:
+            pass
+        return True
 
 
 def _imap_processes(fn, items, workers):
     threads = max(1, (os.cpu_count() or 1) // workers)
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=_mp_context(),
-                               initializer=_init_worker, initargs=(threads,))
+                               initializer=_init_worker, initargs=(threads, os.getpid()))
     try:
         futures = {pool.submit(fn, item): i for i, item in enumerate(items)}
         for future in as_completed(futures):

@@ -3,7 +3,8 @@
 Each subcommand lives in ``irdetect/commands/<name>.py`` with ``add_arguments(parser)``
 and ``run(args) -> int``; this module only wires them. User errors (``InputError``), write
 errors (disk full, no permission) and lack of memory end with exit code 2 and one line on
-stderr, never a traceback; SIGINT and SIGTERM end with 130 and 143, leaving no output
+stderr, never a traceback (Python warnings raised on the way are then dropped, else shown
+when the run ends); SIGINT and SIGTERM end with 130 and 143, leaving no output
 (docs/reliability.md).
 """
 
@@ -22,6 +23,7 @@ import logging  # noqa: E402
 import math  # noqa: E402
 import signal  # noqa: E402
 import sys  # noqa: E402
+import warnings  # noqa: E402
 
 from irdetect import __version__  # noqa: E402
 from irdetect.errors import InputError  # noqa: E402
@@ -88,10 +90,16 @@ def main(argv: list[str] | None = None) -> int:
         cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_WARNING)
     args.progress = not args.quiet and sys.stderr.isatty()
     saved = _catch_signals()
+    # the libraries' Python warnings (numpy's RuntimeWarning, ...) are held until the run
+    # ends: shown after a run that succeeds or crashes, dropped when it ends in one line
+    holding = warnings.catch_warnings(record=True)
+    held = holding.__enter__()
+    one_line = True
     try:
         code = int(args.run(args) or 0)
         if received:                   # a library swallowed the signal's exception
             raise KeyboardInterrupt
+        one_line = False
         return code
     except InputError as exc:
         return _fail(args, str(exc))
@@ -108,10 +116,20 @@ def main(argv: list[str] | None = None) -> int:
         return _fail(args, "not enough memory for this input and configuration")
     except OSError as exc:
         if exc.errno not in WRITE_ERRNOS:
+            one_line = False
             raise
         where = f"{exc.filename}: " if exc.filename else ""
         return _fail(args, f"{where}{exc.strerror}")
+    except SystemExit:                 # an argparse error of the command: one line
+        raise
+    except BaseException:
+        one_line = False               # a traceback: the warnings may tell why
+        raise
     finally:
+        holding.__exit__(None, None, None)
+        if not one_line:
+            for w in held:
+                warnings.showwarning(w.message, w.category, w.filename, w.lineno)
         _restore_signals(saved)
 
 

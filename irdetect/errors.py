@@ -17,12 +17,41 @@ class InputError(ValueError):
         What is wrong, in one line.
     path : str or os.PathLike, optional
         The file concerned; it is named in the message.
+    keys : tuple of str, optional
+        The configuration or scenario keys whose values are at fault, so a command can
+        name the options that set them (:func:`name_options`).
     """
 
-    def __init__(self, message: str, path: str | os.PathLike | None = None):
+    def __init__(self, message: str, path: str | os.PathLike | None = None, *,
+                 keys: tuple[str, ...] = ()):
         self.path = None if path is None else os.fspath(path)
+        self.message = message
+        self.keys = tuple(keys)
         text = message if self.path is None else f"{self.path}: {message}"
         super().__init__(text)
+
+
+def name_options(exc: InputError, options: dict[str, str]) -> InputError:
+    """``exc`` with the options that set its keys in front of its message.
+
+    Parameters
+    ----------
+    exc : InputError
+        An error whose ``keys`` name the values at fault.
+    options : dict
+        Key -> the option as the user gave it (``{"height": "--size 0x0"}``), for the keys
+        an option set.
+
+    Returns
+    -------
+    InputError
+        ``"--size 0x0: height must be >= 1, got 0"``; ``exc`` itself when no option set
+        any of its keys (the value came from a preset file, which it names).
+    """
+    named = list(dict.fromkeys(options[k] for k in exc.keys if k in options))
+    if not named:
+        return exc
+    return InputError(f"{', '.join(named)}: {exc.message}", exc.path, keys=exc.keys)
 
 
 @contextmanager
@@ -57,7 +86,9 @@ def _memory_cap(extra: int):
     side, a caller's thread pool); there the dry run runs uncapped."""
     import threading
 
-    if threading.active_count() > 1:
+    others = [t for t in threading.enumerate() if t is not threading.current_thread()
+              and t.name != "irdetect-parent-watch"]       # a batch worker's idle watch
+    if others:
         yield
         return
     soft, hard = resource.getrlimit(resource.RLIMIT_AS)

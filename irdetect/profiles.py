@@ -49,7 +49,8 @@ def profile_path(name: str) -> Path | None:
         return None
     path = data_dir("profiles") / f"{name}.toml"
     if not path.is_file():
-        raise InputError(f"unknown profile {name!r} (known: {', '.join(profile_names())})")
+        raise InputError(f"--profile {name}: unknown profile "
+                         f"(known: {', '.join(profile_names())})")
     return path
 
 

@@ -528,6 +528,14 @@ def _panel_title(image, text, font_scale):
     put_text(image, text, (4, th + 4), font_scale)
 
 
+def check_gamma(gamma: float) -> None:
+    """Refuse a display gamma that is not a positive number, naming ``--gamma``."""
+    try:
+        stretch(np.zeros((2, 2), np.uint8), limits=(0, 1), gamma=gamma)
+    except ValueError as exc:
+        raise InputError(f"--gamma {gamma:g}: {exc}") from None
+
+
 def write_video(source, results, output, *, fps: float | None = None,
                 scale: float | None = None, every: int = 1, truth=None,
                 candidates: bool = False, panels: bool = False, gamma: float = 1.0,
@@ -599,9 +607,9 @@ def write_video(source, results, output, *, fps: float | None = None,
         raise InputError(f"--trail must be an integer >= 0, got {trail}")
     try:
         display_limits(np.zeros((2, 2)), low=low, high=high)
-        stretch(np.zeros((2, 2), np.uint8), limits=(0, 1), gamma=gamma)
     except ValueError as exc:
-        raise InputError(f"bad --percentiles LOW HIGH or --gamma: {exc}") from None
+        raise InputError(f"--percentiles {low:g} {high:g}: {exc}") from None
+    check_gamma(gamma)
     inputs = (results.path, source.path)
     check_video_path(output, force, inputs)
     check_results_match(results, source.shape, sequence_name=Path(source.path).name)

@@ -38,7 +38,7 @@ def test_every_profile_loads_and_a_config_file_goes_on_top(tmp_path):
     mixed = load_profile("fast", extra)
     assert mixed.detect.k == 4.5 and mixed.detect.sample == 4       # file over profile
     assert mixed.combine.length == 6 and mixed.correlate.verify == 0
-    with pytest.raises(InputError, match="unknown profile 'quick'.*fast"):
+    with pytest.raises(InputError, match="--profile quick: unknown profile.*fast"):
         load_profile("quick")
     extra.write_text("[detect]\nkk = 1\n")
     with pytest.raises(InputError, match="detect.kk"):

@@ -93,3 +93,107 @@ def test_without_tifffile_the_error_says_what_to_install(tmp_path, monkeypatch):
     monkeypatch.setattr(builtins, "__import__", no_tifffile)
     with pytest.raises(InputError, match=r"pip install irdetect\[tiff\]"):
         open_sequence(tmp_path / "s.tif")
+
+
+# --- compressed stacks (issue 29): OpenCV's imwritemulti writes LZW by default ------------
+
+#: compression name -> (tifffile's compression argument, OpenCV's IMWRITE_TIFF_COMPRESSION)
+COMPRESSIONS = {"none": (None, 1), "lzw": ("lzw", 5), "deflate": ("zlib", 8),
+                "packbits": ("packbits", 32773)}
+
+
+def _write_stack(path, frames, writer, compression):
+    if writer == "opencv":
+        import cv2
+        assert cv2.imwritemulti(str(path), list(frames),
+                                [cv2.IMWRITE_TIFF_COMPRESSION, COMPRESSIONS[compression][1]])
+    else:
+        pytest.importorskip("imagecodecs")     # tifffile encodes LZW and PackBits with it
+        tifffile.imwrite(path, frames, compression=COMPRESSIONS[compression][0])
+
+
+def _damage_strip(path, page=2):
+    """Overwrite the strip data of one page (the file's structure stays intact)."""
+    with tifffile.TiffFile(path) as tif:
+        offset, count = tif.pages[page].dataoffsets[0], tif.pages[page].databytecounts[0]
+    data = bytearray(path.read_bytes())
+    data[offset + 4:offset + count] = b"\xab" * (count - 4)
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("compression", list(COMPRESSIONS))
+@pytest.mark.parametrize("writer", ["opencv", "tifffile"])
+def test_compressed_stack_reads_as_stored(tmp_path, cli, writer, compression):
+    frames = _stack(np.uint16, (6, 40, 50))
+    _write_stack(tmp_path / "s.tif", frames, writer, compression)
+    with open_sequence(tmp_path / "s.tif") as src:
+        assert src.shape == frames.shape and src.dtype == frames.dtype
+        np.testing.assert_array_equal(src[:], frames)
+        np.testing.assert_array_equal(src[3:5], frames[3:5])
+    code, _, err = cli("convert", "s.tif", "-o", "s.h5", "-q")
+    assert code == 0, err
+    with open_sequence(tmp_path / "s.h5") as out:
+        np.testing.assert_array_equal(out[:], frames)
+
+
+@pytest.mark.parametrize("compression", ["lzw", "deflate", "packbits"])
+def test_damaged_compressed_stack_says_corrupt(tmp_path, cli, compression):
+    _write_stack(tmp_path / "s.tif", _stack(np.uint16, (6, 40, 50)), "opencv", compression)
+    _damage_strip(tmp_path / "s.tif")
+    code, _, err = cli("convert", "s.tif", "-o", "s.h5")
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1, err
+    assert "s.tif: corrupt or truncated TIFF file" in lines[0]
+    assert not (tmp_path / "s.h5").exists()
+
+
+#: run in a Python without imagecodecs (an import of it fails): read every stack given,
+#: compare with the .npy beside it, print one result line per file
+_WITHOUT_IMAGECODECS = """
+import sys
+sys.modules["imagecodecs"] = None
+import numpy as np
+from irdetect.errors import InputError
+from irdetect.io import open_sequence
+for name in sys.argv[1:]:
+    try:
+        with open_sequence(name + ".tif") as src:
+            same = np.array_equal(src[:], np.load(name + ".npy"))
+            print(name, "opencv" if src._opencv else "tifffile", same)
+    except InputError as exc:
+        print(name, "error", exc)
+"""
+
+
+def test_without_imagecodecs_opencv_reads_what_tifffile_cannot(tmp_path):
+    """The `tiff` extra brings imagecodecs; a tifffile without it still reads OpenCV's
+    LZW (OpenCV decodes it), says corrupt for a damaged one and names the package for a
+    compression neither decodes."""
+    import subprocess
+    import sys
+
+    frames = _stack(np.uint16, (6, 40, 50))
+    names = []
+    for writer in ("opencv", "tifffile"):
+        for compression in COMPRESSIONS:
+            name = f"{writer}-{compression}"
+            _write_stack(tmp_path / f"{name}.tif", frames, writer, compression)
+            np.save(tmp_path / f"{name}.npy", frames)
+            names.append(name)
+    _write_stack(tmp_path / "bad.tif", frames, "opencv", "lzw")
+    _damage_strip(tmp_path / "bad.tif")
+    pytest.importorskip("imagecodecs")
+    tifffile.imwrite(tmp_path / "zstd.tif", frames, compression="zstd")
+    for extra in ("bad", "zstd"):
+        np.save(tmp_path / f"{extra}.npy", frames)
+    run = subprocess.run([sys.executable, "-c", _WITHOUT_IMAGECODECS, *names, "bad", "zstd"],
+                         cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert run.stderr == ""                        # OpenCV's libtiff log stays quiet
+    found = dict(line.split(" ", 1) for line in run.stdout.strip().splitlines())
+    for name in names:
+        reader = "opencv" if name.endswith("lzw") else "tifffile"
+        assert found[name] == f"{reader} True", (name, found[name])
+    assert found["bad"].startswith("error bad.tif: corrupt or truncated TIFF file")
+    assert found["zstd"] == ("error zstd.tif: ZSTD compressed TIFF pages need the imagecodecs "
+                             "package: pip install imagecodecs (or irdetect[tiff])")

@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import logging
 
-import numpy as np
 from tqdm import tqdm
 
 from irdetect.errors import InputError
 from irdetect.io import check_output_path, open_sequence, read_point_annotations, write_sequence
+from irdetect.io.sources import check_values
 
 log = logging.getLogger(__name__)
 
@@ -37,9 +37,9 @@ def run(args) -> int:
         bar = tqdm(total=len(src), unit="frame", disable=not args.progress, desc="convert")
 
         def blocks():
-            for _, frames in src.windows(64):
-                if frames.dtype.kind == "f" and not np.isfinite(frames).all():
-                    raise InputError("frames hold NaN or inf values", args.input)
+            for start, frames in src.windows(64):
+                # values beyond float32's range are kept as stored (process refuses them)
+                check_values(frames, start, args.input, limit=None)
                 bar.update(len(frames))
                 yield frames
 

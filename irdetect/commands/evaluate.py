@@ -11,6 +11,11 @@ table it holds:
                     pt_path: a track within 2 x --gate px of its target in 80 % of its
                     frames; on scans the same per window, and OSPA, GOSPA
   tracking          CLEAR-MOT (MOTA, MOTP in px), IDF1 and identity switches
+  IRSTD (--irstd)   Pd and Fa as infrared small-target papers compute them from masks
+                    (pyirstdmetrics): a target is detected when a predicted region's
+                    centroid lies within --gate px of its own (3 px in the field), Fa =
+                    pixels of unmatched regions / all pixels; points are drawn as discs
+                    (docs/format.md says which definition each figure uses)
 
 Truth comes from --truth, else from the sequence the results were made from: its /truth,
 or the truth.txt of its recording folder. A legend line under the table says what each
@@ -42,6 +47,9 @@ def add_arguments(p):
     p.add_argument("--gate", type=float, default=3.0,
                    help="match distance in px between a detection and the true path (3)")
     p.add_argument("--json", action="store_true", help="print the scores as JSON")
+    p.add_argument("--irstd", action="store_true",
+                   help="also Pd and Fa as the IRSTD field computes them from masks "
+                   "(pyirstdmetrics), to set beside a paper's table")
 
 
 # --- sections: (name, table it needs, function(results, truth, context) -> dict) -------
@@ -82,8 +90,10 @@ SECTIONS: list[tuple[str, str, callable]] = [
 ]
 
 
-def evaluate(results_path, truth_path=None, *, gate: float = 3.0) -> dict:
-    """Scores of a results file: ``{section: {metric: value}}``.
+def evaluate(results_path, truth_path=None, *, gate: float = 3.0,
+             irstd: bool = False) -> dict:
+    """Scores of a results file: ``{section: {metric: value}}``; ``irstd`` adds the
+    section of ``irdetect.metrics.irstd`` (IRSTD Pd / Fa).
 
     Raises
     ------
@@ -96,6 +106,9 @@ def evaluate(results_path, truth_path=None, *, gate: float = 3.0) -> dict:
     results = read_results(results_path)
     from irdetect.metrics.initiation import evaluate_scan_results, scan_tracks_of
     if scan_tracks_of(results, warn=False) is not None:     # initiate on scans: scans truth
+        if irstd:
+            raise InputError("--irstd scores image detections; this holds tracks on scans",
+                             results_path)
         return {"track initiation (scans)": evaluate_scan_results(results, truth_path)}
     truth, seq_shape = _load_truth(results, results_path, truth_path)
     attrs = results.attrs
@@ -122,6 +135,9 @@ def evaluate(results_path, truth_path=None, *, gate: float = 3.0) -> dict:
     if not out:
         raise InputError(f"nothing to score: no {', '.join(t for _, t, _ in SECTIONS)} table",
                          results_path)
+    if irstd:
+        from irdetect.metrics.irstd import irstd_section
+        out["IRSTD (pyirstdmetrics)"] = irstd_section(results, truth, ctx, results_path)
     return out
 
 
@@ -162,6 +178,8 @@ LEGEND = {
     "motp": "motp = mean distance of the matches (px)",
     "ospa_mean": "ospa = optimal subpattern assignment distance per window (m)",
     "gate": "gate = match distance (px)",
+    "irstd_pd": "irstd_pd = targets a region's centroid is within distance of / targets",
+    "irstd_fa": "irstd_fa = pixels of unmatched regions / all pixels",
 }
 
 
@@ -187,7 +205,7 @@ def format_table(scores: dict) -> str:
 
 
 def run(args) -> int:
-    scores = evaluate(args.results, args.truth, gate=args.gate)
+    scores = evaluate(args.results, args.truth, gate=args.gate, irstd=args.irstd)
     if args.json:
         print(json.dumps(_no_nan(scores), indent=2, default=_plain))
     else:

@@ -107,6 +107,10 @@ def resolve(args, scans, attrs) -> tuple[dict, object]:
     overridden by the preset's table, --config's table and the options."""
     from irdetect.initiate.sensor import derive_params, sensor_model
 
+    for option, value in (("--sigma", args.sigma), ("--sigma-range", args.sigma_range),
+                          ("--sigma-azimuth", args.sigma_azimuth)):
+        if value is not None and not value > 0:     # 0 would read as "not given"
+            raise InputError(f"{option} must be a number > 0, got {value:g}")
     preset, config = _tables(args, attrs)
     table = {**preset, **config}
     lo, hi = _speed(args.speed)

@@ -58,8 +58,11 @@ def run(args) -> int:
     from irdetect.metrics.initiation import scan_tracks_of
     from irdetect.plot import require_matplotlib, plot_results, write_figure
 
+    from irdetect.render import check_gamma
+
     if args.scale is not None and not 0.05 <= args.scale <= 16:
         raise InputError(f"--scale must lie in [0.05, 16], got {args.scale}")
+    check_gamma(args.gamma)
     check_output_path(args.output, args.force, inputs=(args.results,))
     require_matplotlib()                             # the install hint before any work
     if not Path(args.results).exists():

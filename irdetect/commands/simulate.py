@@ -13,13 +13,40 @@ import logging
 import numpy as np
 from tqdm import tqdm
 
-from irdetect.errors import InputError
+from irdetect.errors import InputError, name_options
 from irdetect.io import write_sequence
 from irdetect.simulate import load_scenario, simulate_blocks
 from irdetect.simulate.harbour import harbour_blocks, load_harbour
 from irdetect.simulate.presets import preset_kind
 
 log = logging.getLogger(__name__)
+
+#: scenario key -> the option that sets it
+OPTIONS = {"snr": "--snr", "n_frames": "--frames", "width": "--size", "height": "--size",
+           "n_targets": "--targets", "speed": "--speed", "noise_sigma": "--noise-sigma",
+           "psf_sigma": "--psf-sigma", "camera_pan": "--camera-pan",
+           "camera_jitter": "--camera-jitter", "dtype": "--dtype"}
+
+
+def given_options(args, options: dict[str, str]) -> dict[str, str]:
+    """Key -> the option as given on the command line (``"--size 0x0"``), for the keys
+    of ``options`` whose option was given (``args`` holds it under the key's name, or
+    ``size`` for width and height)."""
+    out = {}
+    for key, option in options.items():
+        value = getattr(args, "size" if option == "--size" else key, None)
+        if value is not None:
+            text = " ".join(f"{v:g}" if isinstance(v, float) else str(v)
+                            for v in (value if isinstance(value, (list, tuple)) else [value]))
+            out[key] = f"{option} {text}"
+    return out
+
+
+def check_seed(seed: int | None) -> int | None:
+    """``--seed``: None (fresh entropy) or an integer >= 0."""
+    if seed is not None and seed < 0:
+        raise InputError(f"--seed must be an integer >= 0, got {seed}")
+    return seed
 
 
 def add_arguments(p):
@@ -57,20 +84,25 @@ def run(args) -> int:
         if not (w.isdigit() and h.isdigit()):
             raise InputError(f"--size must look like 320x240, got {args.size!r}")
         overrides.update(width=int(w), height=int(h))
-    rng = np.random.default_rng(args.seed)
+    rng = np.random.default_rng(check_seed(args.seed))
     kind = preset_kind(args.scenario)
     if kind == "scans":
         raise InputError("a radar scans scenario: use irdetect simulate-scans", args.scenario)
-    if kind == "harbour":
-        if any(overrides.get(k) is not None for k in ("snr", "n_targets", "dtype", "psf_sigma",
-                                                      "camera_jitter", "camera_pan")):
-            raise InputError("--snr, --targets, --dtype, --psf-sigma and --camera-* do not "
-                             "apply to the harbour scene", args.scenario)
-        scenario = load_harbour(args.scenario, **overrides)
-        blocks, truth = harbour_blocks(scenario, rng)
-    else:
-        scenario = load_scenario(args.scenario, **overrides)
-        blocks, truth = simulate_blocks(scenario, rng)
+    given = given_options(args, OPTIONS)
+    try:
+        if kind == "harbour":
+            wrong = [given[k] for k in ("snr", "n_targets", "dtype", "psf_sigma", "speed",
+                                        "camera_jitter", "camera_pan") if k in given]
+            if wrong:
+                raise InputError(f"{', '.join(wrong)} {'does' if len(wrong) == 1 else 'do'} "
+                                 f"not apply to the harbour scene ({args.scenario})")
+            scenario = load_harbour(args.scenario, **overrides)
+            blocks, truth = harbour_blocks(scenario, rng)
+        else:
+            scenario = load_scenario(args.scenario, **overrides)
+            blocks, truth = simulate_blocks(scenario, rng)
+    except InputError as exc:
+        raise name_options(exc, given) from None
     bar = tqdm(total=scenario.n_frames, unit="frame", disable=not args.progress,
                desc="simulate")
 

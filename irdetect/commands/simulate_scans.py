@@ -28,13 +28,23 @@ def add_arguments(p):
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
 
 
+#: scenario key -> the option that sets it
+OPTIONS = {"clutter_density": "--clutter-density", "clutter_mean": "--clutter-mean",
+           "n_scans": "--scans"}
+
+
 def run(args) -> int:
+    from irdetect.commands.simulate import check_seed, given_options
+    from irdetect.errors import InputError, name_options
     from irdetect.io import check_output_path
 
     check_output_path(args.output, args.force)
-    scans, truth, attrs = simulate_scans(
-        args.scenario, rng=args.seed, clutter_density=args.clutter_density,
-        clutter_mean=args.clutter_mean, n_scans=args.n_scans)
+    try:
+        scans, truth, attrs = simulate_scans(
+            args.scenario, rng=check_seed(args.seed), clutter_density=args.clutter_density,
+            clutter_mean=args.clutter_mean, n_scans=args.n_scans)
+    except InputError as exc:
+        raise name_options(exc, given_options(args, OPTIONS)) from None
     attrs["seed"] = -1 if args.seed is None else args.seed
     write_scans(args.output, scans, truth=truth, attrs=attrs, force=args.force)
     log.info("wrote %s: %d scans, %d measurements, %d targets", args.output,

@@ -12,6 +12,8 @@ from __future__ import annotations
 import logging
 import os
 import re
+import zlib
+from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
@@ -100,6 +102,55 @@ class FrameSource:
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.path!r}, shape={self.shape}, dtype={self.dtype})"
+
+
+#: the largest magnitude the stages compute with (they work in float32)
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def check_values(frames: np.ndarray, start: int, path, *, limit: float | None = FLOAT32_MAX
+                 ) -> None:
+    """Refuse floating-point frames holding NaN or inf, or values beyond ``limit``.
+
+    Frames of a file must be finite (docs/format.md). The test is one pass with numpy's
+    floating-point warnings off (``PYTHONWARNINGS=default`` must not print them before the
+    error line): for float32 frames a float64 sum, which NaN or inf anywhere makes
+    non-finite and no finite float32 value overflows; for float64 frames their min and
+    max, which must lie within +-``limit`` (the stages cast to float32: a larger value
+    would overflow there).
+
+    Parameters
+    ----------
+    frames : ndarray of shape (n, H, W)
+        Frames ``start .. start + n - 1``; integer frames always pass.
+    start : int
+        The first frame's index, for the message.
+    path : str or os.PathLike or None
+        The file, named in the message.
+    limit : float or None
+        Largest magnitude allowed (float32's by default); None: only NaN and inf fail.
+
+    Raises
+    ------
+    InputError
+        "frames A..B hold NaN or inf values", or values beyond the limit.
+    """
+    if frames.dtype.kind != "f" or frames.size == 0:
+        return
+    with np.errstate(all="ignore"):
+        if limit is None or frames.dtype.itemsize <= 4:
+            ok = bool(np.isfinite(np.sum(frames, dtype=np.float64)))
+        else:                   # NaN fails the comparisons
+            ok = bool(-limit <= np.min(frames) and np.max(frames) <= limit)
+        if ok:
+            return
+        where = f"frames {start}..{start + len(frames) - 1}"
+        if not np.isfinite(frames).all():
+            raise InputError(f"{where} hold NaN or inf values", path)
+    if limit is None:           # finite float64 values whose sum overflowed
+        return
+    raise InputError(f"{where} hold values beyond +-{limit:.3g} (float32's range, in which "
+                     "irdetect computes)", path)
 
 
 def _check_stack(path, shape, dtype) -> None:
@@ -377,6 +428,11 @@ class NpySource(FrameSource):
         return np.array(self._array[start:stop])
 
 
+#: TIFF compressions OpenCV's own libtiff decodes: none, LZW, Deflate (Adobe and legacy),
+#: PackBits; tifffile needs ``imagecodecs`` for LZW (and JPEG, ZSTD, ...)
+OPENCV_COMPRESSIONS = {1, 5, 8, 32946, 32773}
+
+
 class TiffSource(FrameSource):
     """Frames of a multi-page TIFF or OME-TIFF stack, one page per frame, read lazily
     with ``tifffile`` (the ``tiff`` extra: ``pip install irdetect[tiff]``).
@@ -385,6 +441,13 @@ class TiffSource(FrameSource):
     length 1 are dropped, what remains must be (T, H, W). 8/16-bit and float pages are
     read as stored. ImageJ's frame interval gives ``frame_rate``. A single page is not a
     sequence and is refused, as a single image of any other type is.
+
+    Compressed pages (LZW, the default of OpenCV's ``imwritemulti``; Deflate, PackBits)
+    are decoded by ``imagecodecs``, which the ``tiff`` extra installs; without it, pages
+    that tifffile alone cannot decode are read by OpenCV (``cv2.imreadmulti``), which
+    decodes uncompressed, LZW, Deflate and PackBits pages. A compression neither can
+    decode is refused with the package to install; "corrupt" is kept for files whose
+    pages cannot be decoded.
     """
 
     def __init__(self, path):
@@ -394,7 +457,11 @@ class TiffSource(FrameSource):
         except ImportError:
             raise InputError("reading a TIFF stack needs tifffile: pip install irdetect[tiff]",
                              path) from None
-        self._errors = (tifffile.TiffFileError, OSError, ValueError, IndexError, KeyError)
+        # a page that fails to decode raises its codec's error: imagecodecs' are
+        # RuntimeErrors, tifffile's own Deflate fallback raises zlib.error
+        self._errors = (tifffile.TiffFileError, OSError, ValueError, IndexError, KeyError,
+                        RuntimeError, zlib.error)
+        self._opencv = False        # read the pages with OpenCV (no codec in tifffile)
         # tifffile logs what it finds wrong in a damaged file; the InputError says it once
         logging.getLogger("tifffile").setLevel(logging.CRITICAL)
         try:
@@ -433,16 +500,51 @@ class TiffSource(FrameSource):
         self.dtype = np.dtype(series.dtype)
         _check_stack(self.path, self.shape, self.dtype)
         self._series = series
+        self._opencv = self._needs_opencv(tifffile_codecs())
         interval = (self._file.imagej_metadata or {}).get("finterval")
         self.frame_rate = 1.0 / float(interval) if interval else None
         self._read(0, 1)                       # a truncated file fails here, not mid-run
         self._read(self.shape[0] - 1, self.shape[0])
 
+    def _needs_opencv(self, codecs) -> bool:
+        """True when tifffile lacks the codec of the pages (imagecodecs is not installed)
+        and OpenCV can read them in its stead; an InputError naming the package to
+        install when neither can."""
+        compressions, predictors = codecs
+        key = self._series.keyframe
+        if key.compression in compressions and key.predictor in predictors:
+            return False
+        what = (f"{_enum_name(key.compression)} compressed" if key.compression
+                not in compressions else f"{_enum_name(key.predictor)} predicted")
+        pages = [getattr(p, "index", None) for p in self._series.pages]
+        if key.compression not in OPENCV_COMPRESSIONS or pages != list(range(len(pages))):
+            raise InputError(f"{what} TIFF pages need the imagecodecs package: "
+                             "pip install imagecodecs (or irdetect[tiff])", self.path)
+        return True
+
+    def _read_opencv(self, start, stop):
+        """Pages [start, stop) decoded by OpenCV's libtiff."""
+        with _opencv_quiet():           # libtiff's complaints: the InputError says it once
+            ok, mats = cv2.imreadmulti(self.path, start, stop - start,
+                                       flags=cv2.IMREAD_UNCHANGED)
+        mats = list(mats) if ok else []
+        if len(mats) != stop - start or any(
+                m.shape != self.shape[1:] or m.dtype != self.dtype for m in mats):
+            raise InputError(f"corrupt or truncated TIFF file (pages {start}..{stop - 1} "
+                             "cannot be decoded)", self.path)
+        return np.stack(mats)
+
     def _read(self, start, stop):
         if stop <= start:
             return np.empty((0,) + self.shape[1:], self.dtype)
+        if self._opencv:
+            return self._read_opencv(start, stop)
         try:
             frames = self._file.asarray(key=range(start, stop), series=0)
+        except ImportError:     # a codec tifffile has but whose module is missing (zstd)
+            name = _enum_name(self._series.keyframe.compression)
+            raise InputError(f"{name} compressed TIFF pages need the imagecodecs package: "
+                             "pip install imagecodecs (or irdetect[tiff])", self.path) from None
         except self._errors as exc:
             raise InputError(f"corrupt or truncated TIFF file ({_short(exc)})",
                              self.path) from None
@@ -450,6 +552,30 @@ class TiffSource(FrameSource):
 
     def close(self):
         self._file.close()
+
+
+@contextmanager
+def _opencv_quiet():
+    """OpenCV's log silenced for the block (its libtiff logs each damaged strip)."""
+    logging_ = cv2.utils.logging
+    level = logging_.getLogLevel()
+    logging_.setLogLevel(logging_.LOG_LEVEL_SILENT)
+    try:
+        yield
+    finally:
+        logging_.setLogLevel(level)
+
+
+def tifffile_codecs():
+    """(compressions, predictors): the containers of the TIFF compression and predictor
+    codes tifffile can decode here (``code in compressions``)."""
+    from tifffile import TIFF
+
+    return TIFF.DECOMPRESSORS, TIFF.PREDICTORS
+
+
+def _enum_name(code) -> str:
+    return getattr(code, "name", str(code))
 
 
 def open_sequence(path: str | os.PathLike, dataset: str | None = None) -> FrameSource:

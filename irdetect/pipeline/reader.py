@@ -7,8 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from irdetect.camera import CameraMotion
-from irdetect.errors import InputError
-from irdetect.io.sources import FrameSource
+from irdetect.io.sources import FrameSource, check_values
 
 
 class Reader:
@@ -63,12 +62,9 @@ class Reader:
         else:
             out[...] = self.frames[start:stop]
         # a file's frames must be finite (docs/format.md; arrays given to detect_sequence
-        # may hold NaN, which finds nothing there); NaN or inf anywhere makes the sum
-        # non-finite: one pass, no mask allocated
-        if (out.dtype.kind == "f" and isinstance(self.frames, FrameSource)
-                and not np.isfinite(np.sum(out, dtype=np.float64))):
-            raise InputError(f"frames {start}..{stop - 1} hold NaN or inf values",
-                             getattr(self.frames, "path", None))
+        # may hold NaN, which finds nothing there): one pass, no warning, no mask
+        if isinstance(self.frames, FrameSource):
+            check_values(out, start, getattr(self.frames, "path", None))
         if self.motion is not None and stop > self.measured:
             # frames skipped (windows with gaps) keep the last offset
             first = max(start, self.measured)

@@ -96,14 +96,17 @@ def load_harbour(name: str | os.PathLike = "harbour", **overrides) -> HarbourSce
 
 
 def _validate(s: HarbourScenario, path=None) -> None:
+    """Refuse a bad scene; each InputError carries the ``keys`` at fault."""
     for name in ("height", "width", "n_frames"):
         if getattr(s, name) < 1:
-            raise InputError(f"{name} must be >= 1, got {getattr(s, name)}", path)
+            raise InputError(f"{name} must be >= 1, got {getattr(s, name)}", path, keys=(name,))
     if s.width * s.height > MAX_PIXELS:
         raise InputError(f"frames of {s.width}x{s.height} px: at most {MAX_PIXELS:,} px a "
-                         "frame (8192x8192)", path)
-    if s.noise_sigma < 0 or s.sea_clutter < 0 or s.glint_rate < 0:
-        raise InputError("noise_sigma, sea_clutter and glint_rate must be >= 0", path)
+                         "frame (8192x8192)", path, keys=("width", "height"))
+    for name in ("noise_sigma", "sea_clutter", "glint_rate"):
+        if not getattr(s, name) >= 0:                            # NaN fails too
+            raise InputError(f"{name} must be >= 0, got {getattr(s, name)}", path,
+                             keys=(name,))
     for i, sh in enumerate(s.ships):
         if sh.length <= 0 or sh.height <= 0:
             raise InputError(f"ships[{i}] needs length and height > 0", path)

@@ -82,11 +82,13 @@ MAX_CLUTTER = 10_000_000
 
 def _validate(s: ScanScenario, path=None):
     if s.n_scans < 1:
-        raise InputError(f"n_scans must be >= 1, got {s.n_scans}", path)
+        raise InputError(f"n_scans must be >= 1, got {s.n_scans}", path, keys=("n_scans",))
     if not s.period > 0:
         raise InputError(f"period must be > 0, got {s.period}", path)
-    if not (s.clutter_density >= 0 and s.clutter_mean >= 0):     # NaN fails too
-        raise InputError("clutter_density and clutter_mean must be numbers >= 0", path)
+    for name in ("clutter_density", "clutter_mean"):
+        if not getattr(s, name) >= 0:                            # NaN fails too
+            raise InputError(f"{name} must be a number >= 0, got {getattr(s, name)}", path,
+                             keys=(name,))
     if not 0 <= s.detection_probability <= 1:
         raise InputError(f"detection_probability must lie in [0, 1], got "
                          f"{s.detection_probability}", path)
@@ -99,7 +101,8 @@ def _validate(s: ScanScenario, path=None):
             else s.clutter_density * (x1 - x0) * (y1 - y0) / 1e6)
     if mean * s.n_scans > MAX_CLUTTER:
         raise InputError(f"{mean * s.n_scans:.3g} clutter points expected over the scans, at "
-                         f"most {MAX_CLUTTER:,} (lower the clutter density or mean)", path)
+                         f"most {MAX_CLUTTER:,} (lower the clutter density or mean)", path,
+                         keys=("clutter_density", "clutter_mean", "n_scans"))
     for row in s.targets:
         if len(row) != 4:
             raise InputError(f"every target is [x, vx, y, vy], got {row}", path)

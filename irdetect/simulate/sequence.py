@@ -99,35 +99,51 @@ def load_scenario(name: str | os.PathLike = "wan2008", **overrides) -> SequenceS
 
 
 def _validate(s: SequenceScenario, path=None) -> None:
+    """Refuse a bad scenario; each InputError carries the ``keys`` at fault, so the
+    command names the options that set them."""
     if s.dtype not in _DTYPES:
-        raise InputError(f"dtype must be one of {', '.join(_DTYPES)}, got {s.dtype!r}", path)
+        raise InputError(f"dtype must be one of {', '.join(_DTYPES)}, got {s.dtype!r}", path,
+                         keys=("dtype",))
     for name in ("height", "width", "n_frames"):
         if getattr(s, name) < 1:
-            raise InputError(f"{name} must be >= 1, got {getattr(s, name)}", path)
+            raise InputError(f"{name} must be >= 1, got {getattr(s, name)}", path, keys=(name,))
     if s.width * s.height > MAX_PIXELS:
         raise InputError(f"frames of {s.width}x{s.height} px: at most {MAX_PIXELS:,} px a "
-                         "frame (8192x8192)", path)
-    values = (s.noise_sigma, s.psf_sigma, s.snr, *s.speed, *s.directions)
-    if not all(math.isfinite(v) for v in values):
-        raise InputError("noise_sigma, psf_sigma, snr, speed and directions must be finite "
-                         "numbers", path)
-    if s.noise_sigma < 0 or s.psf_sigma <= 0 or s.snr < 0 or s.n_targets < 0:
-        raise InputError("noise_sigma, snr, n_targets must be >= 0 and psf_sigma > 0", path)
+                         "frame (8192x8192)", path, keys=("width", "height"))
+    for name in ("noise_sigma", "psf_sigma", "snr", "speed", "directions"):
+        value = getattr(s, name)
+        if not all(math.isfinite(v) for v in np.ravel(value)):
+            raise InputError(f"{name} must hold finite numbers, got {value}", path,
+                             keys=(name,))
+    for name, low, strict in (("noise_sigma", 0, False), ("snr", 0, False),
+                              ("n_targets", 0, False), ("psf_sigma", 0, True)):
+        value = getattr(s, name)
+        if value < low or (strict and value == low):
+            raise InputError(f"{name} must be {'>' if strict else '>='} {low}, got {value}",
+                             path, keys=(name,))
     if len(s.speed) != 2 or not 0 <= s.speed[0] <= s.speed[1]:
-        raise InputError(f"speed must be [min, max] with 0 <= min <= max, got {s.speed}", path)
+        raise InputError(f"speed must be [min, max] with 0 <= min <= max, got {s.speed}", path,
+                         keys=("speed",))
     if s.directions and len(s.directions) != s.n_targets:
         raise InputError(f"directions has {len(s.directions)} angles for {s.n_targets} "
-                         "targets", path)
+                         "targets", path, keys=("directions", "n_targets"))
     if len(s.camera_pan) != 2 or not all(math.isfinite(v) for v in s.camera_pan):
-        raise InputError(f"camera_pan must be [vx, vy] px/frame, got {s.camera_pan}", path)
+        raise InputError(f"camera_pan must be [vx, vy] px/frame, got {s.camera_pan}", path,
+                         keys=("camera_pan",))
     if not (math.isfinite(s.camera_jitter) and s.camera_jitter >= 0):
-        raise InputError(f"camera_jitter must be a number >= 0, got {s.camera_jitter}", path)
-    span = (max(s.speed) + math.hypot(*s.camera_pan)) * (s.n_frames - 1)
+        raise InputError(f"camera_jitter must be a number >= 0, got {s.camera_jitter}", path,
+                         keys=("camera_jitter",))
+    pan = math.hypot(*s.camera_pan)
+    span = (max(s.speed) + pan) * (s.n_frames - 1)
     if s.n_targets and min(s.width, s.height) - 2 * s.margin <= 0:
-        raise InputError(f"frames of {s.width}x{s.height} leave no room inside the margin", path)
+        raise InputError(f"frames of {s.width}x{s.height} leave no room inside the "
+                         f"{s.margin:g}-px margin", path, keys=("width", "height", "margin"))
     if s.n_targets and span > 2 * max(s.width, s.height):
-        raise InputError(f"targets at {max(s.speed)} px/frame leave the {s.width}x{s.height} "
-                         f"frame long before frame {s.n_frames}", path)
+        moving = f"{max(s.speed):g} px/frame" + (f" and a camera pan of {pan:g} px/frame"
+                                                 if pan else "")
+        raise InputError(f"targets at {moving} leave the {s.width}x{s.height} frame long "
+                         f"before frame {s.n_frames}", path,
+                         keys=("speed", "camera_pan", "n_frames", "width", "height"))
 
 
 def target_paths(s: SequenceScenario, rng: np.random.Generator) -> np.ndarray:

@@ -9,6 +9,7 @@ import numpy as np
 from tqdm import tqdm
 
 from irdetect import tables
+from irdetect.io.sources import FrameSource, check_values
 from irdetect.track.regions import extract_regions, residual_level
 from irdetect.track.seasky import find_sea_sky_line, sea_sky_band
 from irdetect.track.tracker import FCMPMHTTracker, GNNTracker
@@ -134,6 +135,8 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     with tqdm(total=n, unit="frame", desc="track", disable=not progress) as bar:
         for start in range(0, n, window):
             block = np.asarray(frames[start:start + window])
+            if isinstance(frames, FrameSource):     # a file's frames must be finite
+                check_values(block, start, frames.path)
             out = []
             for j, frame in enumerate(block):
                 mask = None

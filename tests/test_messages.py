@@ -1,0 +1,145 @@
+"""Bad input ends in exactly one line that names what to change (issue 29): the option
+whose value is bad, the file whose content is; Python warnings shown
+(``PYTHONWARNINGS=default``) do not come before it."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import warnings
+
+import h5py
+import numpy as np
+import pytest
+
+
+def _frames(kind: str) -> np.ndarray:
+    rng = np.random.default_rng(3)
+    frames = rng.normal(100, 5, (40, 32, 32))
+    if kind == "nan":
+        frames[20, 4, 5] = np.nan
+    elif kind == "nan-frame":
+        frames[0] = np.nan
+    elif kind == "inf":                  # +inf and -inf: their sum is NaN ("invalid value")
+        frames[3, 4, 5], frames[3, 4, 6] = np.inf, -np.inf
+    elif kind == "huge":                 # finite float64 beyond float32's range
+        frames[3, 4, 5] = frames[3, 4, 6] = 1e308
+    return frames.astype(np.float64 if kind == "huge" else np.float32)
+
+
+@pytest.mark.parametrize("kind", ["nan", "nan-frame", "inf", "huge"])
+def test_bad_values_give_one_line_with_warnings_shown(tmp_path, kind):
+    with h5py.File(tmp_path / "bad.h5", "w") as f:
+        f["frames"] = _frames(kind)
+    env = dict(os.environ, PYTHONWARNINGS="default")
+    commands = [["process", "bad.h5", "-o", "r.h5"], ["track", "bad.h5", "-o", "t.h5"]]
+    if kind != "huge":                   # convert keeps finite float64 values as stored
+        commands.append(["convert", "bad.h5", "-o", "c.h5"])
+    for command in commands:
+        run = subprocess.run([sys.executable, "-m", "irdetect", *command], cwd=tmp_path,
+                             env=env, capture_output=True, text=True, timeout=120)
+        lines = run.stderr.strip().splitlines()
+        assert run.returncode == 2 and len(lines) == 1, (command, run.stderr)
+        assert lines[0].startswith(f"irdetect {command[0]}: error: bad.h5: frames "), lines
+        expected = "float32's range" if kind == "huge" else "hold NaN or inf values"
+        assert expected in lines[0]
+        assert not any(p.name not in ("bad.h5",) for p in tmp_path.iterdir()), command
+
+
+@pytest.mark.filterwarnings("always")
+def test_held_warnings_are_dropped_on_a_one_line_error_and_shown_otherwise(monkeypatch,
+                                                                          capsys):
+    from irdetect import cli
+    from irdetect.commands import info
+    from irdetect.errors import InputError
+
+    def warn_then(outcome):
+        def run(args):
+            warnings.warn("a library's warning", RuntimeWarning)
+            if outcome == "error":
+                raise InputError("bad input", "x.h5")
+            return 0
+        return run
+
+    shown = []
+    monkeypatch.setattr(warnings, "showwarning", lambda *a, **k: shown.append(a[0]))
+    monkeypatch.setattr(info, "run", warn_then("error"))
+    assert cli.main(["info", "x.h5"]) == 2
+    assert capsys.readouterr().err == "irdetect info: error: x.h5: bad input\n"
+    assert shown == []
+    monkeypatch.setattr(info, "run", warn_then("ok"))
+    assert cli.main(["info", "x.h5"]) == 0
+    assert [str(w) for w in shown] == ["a library's warning"]
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """A small sequence with its results, and a scans file, made once."""
+    from irdetect.cli import main
+
+    folder = tmp_path_factory.mktemp("files")
+    cwd = os.getcwd()
+    os.chdir(folder)
+    try:
+        for argv in (["simulate", "seq.h5", "--frames", "36", "--size", "48x40", "--seed", "1"],
+                     ["process", "seq.h5", "-o", "res.h5"],
+                     ["simulate-scans", "scans.h5", "--scans", "6", "--seed", "1"]):
+            assert main(argv + ["-q"]) == 0, argv
+    finally:
+        os.chdir(cwd)
+    return folder
+
+
+#: (command line, what the one line must say): every bad value names its option
+BAD_OPTIONS = [
+    ("simulate s.h5 --size 0x0", "--size 0x0: height must be >= 1, got 0"),
+    ("simulate s.h5 --size 10x10", "--size 10x10: frames of 10x10 leave no room"),
+    ("simulate s.h5 --size 9000x9000", "--size 9000x9000: frames of 9000x9000 px: at most"),
+    ("simulate s.h5 --frames 0", "--frames 0: n_frames must be >= 1, got 0"),
+    ("simulate s.h5 --frames 5000", "--frames 5000: targets at"),
+    ("simulate s.h5 --targets -1", "--targets -1: n_targets must be >= 0"),
+    ("simulate s.h5 --snr -1", "--snr -1: snr must be >= 0"),
+    ("simulate s.h5 --speed 3 1", "--speed 3 1: speed must be [min, max]"),
+    ("simulate s.h5 --noise-sigma -1", "--noise-sigma -1: noise_sigma must be >= 0"),
+    ("simulate s.h5 --psf-sigma 0", "--psf-sigma 0: psf_sigma must be > 0"),
+    ("simulate s.h5 --camera-jitter -1", "--camera-jitter -1: camera_jitter must be"),
+    ("simulate s.h5 --camera-pan 1000 0", "--camera-pan 1000 0: targets at 1 px/frame and a "
+     "camera pan of 1000 px/frame leave"),
+    ("simulate s.h5 --seed -1", "--seed must be an integer >= 0, got -1"),
+    ("simulate s.h5 --scenario harbour --frames 0", "--frames 0: n_frames must be >= 1"),
+    ("simulate s.h5 --scenario harbour --noise-sigma -1", "--noise-sigma -1: noise_sigma"),
+    ("simulate s.h5 --scenario harbour --speed 3 4", "--speed 3 4 does not apply to the "
+     "harbour scene"),
+    ("simulate-scans s.h5 --clutter-density -1", "--clutter-density -1: clutter_density "
+     "must be a number >= 0"),
+    ("simulate-scans s.h5 --clutter-mean -1", "--clutter-mean -1: clutter_mean must be"),
+    ("simulate-scans s.h5 --scans 0", "--scans 0: n_scans must be >= 1"),
+    ("simulate-scans s.h5 --clutter-density 1e9", "--clutter-density 1e+09: 1.44e+14 "
+     "clutter points"),
+    ("simulate-scans s.h5 --seed -1", "--seed must be an integer >= 0, got -1"),
+    ("plot res.h5 -o p.png --gamma 0", "--gamma 0: gamma must be a positive number"),
+    ("video seq.h5 res.h5 -o v.mp4 --gamma -1", "--gamma -1: gamma must be"),
+    ("video seq.h5 res.h5 -o v.mp4 --percentiles 99 1", "--percentiles 99 1: need 0 <= low"),
+    ("initiate scans.h5 -o i.h5 --sigma 0", "--sigma must be a number > 0, got 0"),
+    ("initiate scans.h5 -o i.h5 --sigma -1", "--sigma must be a number > 0, got -1"),
+    ("initiate scans.h5 -o i.h5 --sigma-range -1", "--sigma-range must be a number > 0"),
+    ("initiate scans.h5 -o i.h5 --sigma-azimuth -1", "--sigma-azimuth must be a number > 0"),
+    ("initiate scans.h5 -o i.h5 --false-tracks -1", "--false-tracks must be a number >= 0"),
+    ("process seq.h5 -o r.h5 --profile nope", "--profile nope: unknown profile"),
+    ("track seq.h5 -o t.h5 --profile nope", "--profile nope: unknown profile"),
+]
+
+
+@pytest.mark.parametrize("command, expected", BAD_OPTIONS, ids=[c for c, _ in BAD_OPTIONS])
+def test_every_bad_value_names_its_option(files, monkeypatch, capsys, command, expected):
+    from irdetect.cli import main
+
+    monkeypatch.chdir(files)
+    before = set(files.iterdir())
+    argv = command.split()
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert code == 2 and err == f"irdetect {argv[0]}: error: {err.split(': error: ', 1)[1]}"
+    assert len(err.splitlines()) == 1 and expected in err, err
+    assert set(files.iterdir()) == before
