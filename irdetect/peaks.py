@@ -6,7 +6,8 @@ combined-frame path already computes for its verification: each suppressed frame
 by the PSF's Gaussian (a matched filter) and divided by its local robust noise scale per
 32-px tile (``irdetect.verify.matched_frame``, ``irdetect.verify.standardise``), so a value
 is a local SNR in matched-filter sigmas. A detection is a pixel that is the largest of its
-3 x 3 neighbourhood and reaches the CFAR level k.
+3 x 3 neighbourhood (the frame's outermost pixels, with neighbours missing, are none)
+and reaches the CFAR level k.
 
 The level follows from a stated false-alarm rate per frame (``cfar_level``): on white
 noise a pixel exceeds k with probability Q(k) (the Gaussian tail), so a frame of N pixels
@@ -101,6 +102,7 @@ def frame_peaks(matched, k: float, *, first_frame: int = 0,
     for i, m in enumerate(matched):       # a loop over the frames of a window
         m = np.asarray(m, np.float32)
         peak = (m >= k) & (m >= cv2.dilate(m, _NEIGHBOURS))
+        peak[[0, -1], :] = peak[:, [0, -1]] = False      # a peak has its 8 neighbours
         ys, xs = np.nonzero(peak)
         if not len(ys):
             continue
