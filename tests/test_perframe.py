@@ -63,9 +63,14 @@ def test_frame_peaks_are_local_maxima_with_sub_pixel_positions():
     assert p["score"][0] == pytest.approx(m[13, 20])
     # the strongest max_peaks of a frame
     many = np.zeros((40, 50), np.float32)
-    many[5:35:4, 5:45:4] = np.arange(80, dtype=np.float32).reshape(8, 10) + 10
+    many[4:36:7, 4:50:7] = np.arange(35, dtype=np.float32).reshape(5, 7) + 10
     top = frame_peaks([many], 5.0, max_peaks=5)
-    assert sorted(top["score"]) == [85.0, 86.0, 87.0, 88.0, 89.0]
+    assert sorted(top["score"]) == [40.0, 41.0, 42.0, 43.0, 44.0]
+    # a ridge (an edge the background left) is no point: nothing on it is a peak
+    ridge = np.zeros((40, 50), np.float32)
+    ridge[20, :] = 10.0
+    ridge[20, 25] = 10.5
+    assert len(frame_peaks([ridge], 5.0)) == 0
     with pytest.raises(ValueError, match="max_peaks"):
         frame_peaks([many], 5.0, max_peaks=0)
 
