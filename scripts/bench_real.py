@@ -374,7 +374,7 @@ CHOSEN = (
     ("per-frame position sigma, px (frame.sigma)", "config", "frame.sigma",
      (0.7, 1.0, 1.5), 1.0),
     ("per-frame clutter tracks per frame (frame.false_tracks)", "config",
-     "frame.false_tracks", (0.003, 0.01, 0.03), 0.01),
+     "frame.false_tracks", (0.0003, 0.001, 0.01), 0.001),
 )
 
 

@@ -52,6 +52,7 @@ SNRs meets it when each of its SNR parts does.
 
 Usage: .venv/bin/python scripts/bench_unseen.py [--scenes 100] [--seed 0] [--jobs 1]
        [--max-frames 300] [--max-size 1024] [--out docs/results/unseen.md] [--draw-only]
+       [--config FILE.toml]
 
 The figure (Pd per stratum) goes beside the table, same name with ``.png``: matplotlib
 when installed, else OpenCV. ``--draw-only`` draws and validates the scenes (no
@@ -75,7 +76,7 @@ import cv2
 import numpy as np
 
 from irdetect.combine import frames_needed, window_starts
-from irdetect.config import ProcessConfig
+from irdetect.config import ProcessConfig, load_config
 from irdetect.metrics.detection import path_distance, roc, score_detections
 from irdetect.metrics.initiation import score_track_paths
 from irdetect.pipeline import N_CORRELATE, detect_sequence, fit_config
@@ -366,7 +367,7 @@ def run_scene(task: tuple) -> dict:
     Parameters
     ----------
     task : tuple
-        (index, seed, max_frames, max_size).
+        (index, seed, max_frames, max_size, config path or None).
 
     Returns
     -------
@@ -376,7 +377,8 @@ def run_scene(task: tuple) -> dict:
         ``detect_sequence``, ``sim_seconds``, ``clipped`` (share of pixels at the dtype's
         limits), and ``error`` (None, or irdetect's exception as text).
     """
-    index, seed, max_frames, max_size = task
+    index, seed, max_frames, max_size, config_path = task
+    config = load_config(config_path) if config_path else ProcessConfig()
     scene = draw_scene(index, seed, max_frames, max_size)
     t0 = time.perf_counter()
     frames, truth = render_scene(scene)
@@ -389,11 +391,11 @@ def run_scene(task: tuple) -> dict:
     gate = max(3.0, 2.5 * scene["psf_sigma"])
     scene.update(gate=gate, error=None)
     try:
-        run = fit_config(ProcessConfig(), n)
+        run = fit_config(config, n)
         length, step = run.combine.length, run.combine.step
         scene.update(length=length, step=step)
         t0 = time.perf_counter()
-        out = detect_sequence(frames, ProcessConfig())
+        out = detect_sequence(frames, config)
         scene["seconds"] = time.perf_counter() - t0
         scene["fps"] = n / scene["seconds"]
         scene.update(score_windows(out["detections"], truth, n_frames=n, length=length,
@@ -668,7 +670,8 @@ def write_report(path: Path, scenes: list[dict], args, total: float) -> None:
         f"total run time {total:.0f} s, of which detect_sequence {det_s:.0f} s for "
         f"{det_f} frames). The doc is written by the script only.",
         "",
-        f"irdetect runs its **default configuration** (`ProcessConfig()`) on every scene: no "
+        (f"irdetect runs the configuration `{args.config}` on every scene: no " if args.config
+         else "irdetect runs its **default configuration** (`ProcessConfig()`) on every scene: no ") +
         f"per-scene setting; sequences shorter than 36 frames run with the shorter combined "
         f"frames of `fit_config`. {len(scenes)} scenes, scene i drawn with "
         f"`numpy.random.default_rng({args.seed} + i)` from the `{PRESET}` preset, every "
@@ -761,6 +764,8 @@ def write_report(path: Path, scenes: list[dict], args, total: float) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", type=int, default=100, help="number of scenes (100)")
+    ap.add_argument("--config", help="TOML configuration instead of the defaults (to compare "
+                    "a variant on the same scenes)")
     ap.add_argument("--seed", type=int, default=0, help="scene i uses default_rng(seed + i)")
     ap.add_argument("--jobs", type=int, default=1, help="processes (1)")
     ap.add_argument("--max-frames", type=int, default=MAX_FRAMES,
@@ -778,7 +783,8 @@ def main(argv=None) -> int:
         ap.error(f"--max-size must be >= {MIN_SIZE}")
     if args.scenes < 1 or args.jobs < 1:
         ap.error("--scenes and --jobs must be >= 1")
-    tasks = [(i, args.seed, args.max_frames, args.max_size) for i in range(args.scenes)]
+    tasks = [(i, args.seed, args.max_frames, args.max_size, args.config)
+             for i in range(args.scenes)]
     if args.draw_only:
         for task in tasks:
             s = draw_scene(*task)

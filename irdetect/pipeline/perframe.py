@@ -44,7 +44,7 @@ GATE = 3.0
 def frame_tracks(peaks: np.ndarray, camera: np.ndarray, starts, length: int, *,
                  shape: tuple[int, int], n_frames: int, level: float, false_rate: float = 1.0,
                  sigma: float = 1.0,
-                 max_speed: float = 16.0, false_tracks: float = 0.01, confirm_m: int = 3,
+                 max_speed: float = 16.0, false_tracks: float = 0.001, confirm_m: int = 3,
                  confirm_n: int = 4) -> np.ndarray:
     """The per-frame path's tracks, one set per window of frames.
 
