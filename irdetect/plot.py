@@ -348,7 +348,7 @@ def plot_results(results, source=None, *, suppressed: bool = True, truth=None,
     return fig
 
 
-def plot_roc(curves: dict, *, title: str = "") -> "Figure":
+def plot_roc(curves: dict, *, title: str = ""):
     """A figure of ROC curves: Pd against false detections per frame (log axis).
 
     Parameters

@@ -3,7 +3,6 @@ combined-frame path, the shared score and the operating point."""
 
 import dataclasses
 
-import cv2
 import numpy as np
 import pytest
 
