@@ -21,13 +21,11 @@ from __future__ import annotations
 
 import math
 
-import cv2
 import numpy as np
 from scipy.special import ndtri
 
 from irdetect import tables
-
-_NEIGHBOURS = np.ones((3, 3), np.uint8)
+from irdetect.kernels.peaks import local_maxima
 
 
 def cfar_level(n_pixels: int, false_rate: float, scale_error: float = 0.0) -> float:
@@ -112,14 +110,16 @@ def frame_peaks(matched, k: float, *, first_frame: int = 0,
     if int(max_peaks) != max_peaks or max_peaks < 1:
         raise ValueError(f"max_peaks must be an integer >= 1, got {max_peaks!r}")
     parts = []
+    ys_buf = xs_buf = None
     for i, m in enumerate(matched):       # a loop over the frames of a window
-        m = np.asarray(m, np.float32)
-        peak = (m >= k) & (m >= cv2.dilate(m, _NEIGHBOURS))
-        peak[[0, -1], :] = peak[:, [0, -1]] = False      # a peak has its 8 neighbours
-        ys, xs = np.nonzero(peak)
-        if not len(ys):
-            continue
+        m = np.ascontiguousarray(m, np.float32)
         h, w = m.shape
+        if ys_buf is None or len(ys_buf) < m.size:
+            ys_buf, xs_buf = np.empty(m.size, np.int64), np.empty(m.size, np.int64)
+        n = local_maxima(m, np.float32(k), ys_buf, xs_buf)
+        if not n:
+            continue
+        ys, xs = ys_buf[:n].copy(), xs_buf[:n].copy()
         ry = np.clip(np.rint(ys[:, None] + _RING[None, :, 1]), 0, h - 1).astype(np.intp)
         rx = np.clip(np.rint(xs[:, None] + _RING[None, :, 0]), 0, w - 1).astype(np.intp)
         point = m[ry, rx].max(axis=1) < RING_RATIO * m[ys, xs]

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from irdetect.kernels.sampling import patch_sums, track_sums
 from irdetect.robust import median, median_mad_sigma, tile_map, tile_samples
 
 
@@ -188,9 +189,8 @@ def track_significance(evidence: Evidence, points: np.ndarray, screen: float = -
     3 x 3 velocities around v at position c, and moves both to their bests, until
     neither moves or ``REFINE_ROUNDS``. It reaches 3 steps away where one joint
     3 x 3 x 3 x 3 grid per step (the earlier search) reached one, with at most 108
-    hypotheses per segment instead of 162. Sampling is by ``cv2.remap`` over all
-    segments and hypotheses at once (``_sample_sum``), in chunks of segments
-    (``_chunks``).
+    hypotheses per segment instead of 162. Sampling is by the compiled ``_sample_sum``
+    over all segments and hypotheses at once.
     """
     p = np.asarray(points, np.float64).reshape(-1, 3, 2)
     if len(p) == 0:
@@ -207,21 +207,18 @@ def track_significance(evidence: Evidence, points: np.ndarray, screen: float = -
     # coarse: from each lead, the line moved ahead by lead frames of its own motion
     lead = np.repeat(np.asarray(evidence.leads, np.float64), len(_GRID))
     grid = np.tile(_COARSE * _GRID, (len(evidence.leads), 1))
-    for r in _chunks(np.arange(len(p)), frames, len(grid) * n_f):
-        cc = c[r, None, :] + v[r, None, :] * lead[None, :, None] + grid[None]
-        total = _sample_sum(frames, dts, cc, v[r, None, :], bilinear=False, **kw)
-        best = total.argmax(1)
-        k = np.arange(len(r))
-        c[r], z[r] = cc[k, best], total[k, best] / norm
+    cc = c[:, None, :] + v[:, None, :] * lead[None, :, None] + grid[None]
+    total = _grid_sums(frames, dts, c, v, evidence.leads, **kw)
+    best = total.argmax(1)
+    k = np.arange(len(p))
+    c, z[:] = cc[k, best], total[k, best] / norm
     live = np.flatnonzero(z >= screen)
     for dc, dv in _REFINE:
         rows = live
         for _ in range(REFINE_ROUNDS):
             if len(rows) == 0:
                 break
-            rows = np.concatenate([_climb(frames, dts, r, c, v, z, norm, dc * _GRID,
-                                          dv * _GRID, kw)
-                                   for r in _chunks(rows, frames, 2 * len(_GRID) * n_f)])
+            rows = _climb(frames, dts, rows, c, v, z, norm, dc * _GRID, dv * _GRID, kw)
         if len(rows):
             # still moving after the last round: the statistic where c, v are now
             z[rows] = _sample_sum(frames, dts, c[rows, None], v[rows, None], True,
@@ -232,13 +229,6 @@ def track_significance(evidence: Evidence, points: np.ndarray, screen: float = -
         # after it of a chain that passed ``verify`` was 3.56, 1.4 x the screen)
         live = live[z[live] >= screen]
     return z, c, v
-
-
-def _chunks(rows, frames, samples_per_row):
-    """``rows`` in chunks of at most ``_budget(frames)`` samples (at least one row each):
-    the temporaries of a search stay bounded whatever the number of segments."""
-    step = max(1, _budget(frames) // samples_per_row)
-    return [rows[a:a + step] for a in range(0, len(rows), step)]
 
 
 def _climb(frames, dts, rows, c, v, z, norm, dcs, dvs, kw=None) -> np.ndarray:
@@ -356,21 +346,6 @@ def local_significance(evidence: Evidence, c: np.ndarray, v: np.ndarray,
     return (np.asarray(z, np.float64) - med) / np.maximum(spread, 1.0)
 
 
-#: samples (segments x hypotheses x frames) per chunk of ``_sample_sum``'s maps: an 8th
-#: of the evidence's size (temporaries bounded by the evidence the pipeline holds
-#: anyway), within these limits
-CHUNK = 1 << 13
-CHUNK_MAX = 1 << 18
-#: rows of the tall image of one ``cv2.remap`` call at most (frames of more rows: one
-#: each); cv2.remap itself takes images and maps of fewer than SHRT_MAX rows
-TALL_ROWS = 8192
-_SHRT_MAX = 32767
-
-
-def _budget(blocks) -> int:
-    return max(CHUNK, min(CHUNK_MAX, sum(b.size for b in blocks) // 8))
-
-
 def _sample_sum(blocks, dts, cc, vv, bilinear, shift=None, cap=None):
     """Track sums: sum_f S_f(c + v dts[f] + shift[f]) over the evidence frames, per
     hypothesis.
@@ -398,63 +373,45 @@ def _sample_sum(blocks, dts, cc, vv, bilinear, shift=None, cap=None):
 
     Notes
     -----
-    A block of frames is one tall (F_j H, W) image, so one ``cv2.remap`` samples every
-    hypothesis in all of its frames: positions are clamped to the frame (the border
-    pixels' values outside it) and frame f's rows are offset by f H. The maps of all F
-    frames are computed at once, (F, segments x hyp), one row per frame.
+    The compiled ``irdetect.kernels.sampling.track_sums``: positions outside a frame take
+    its border pixels' values (``cv2.BORDER_REPLICATE``).
     """
     f32 = np.float32
     n, hyp = cc.shape[:2]
-    h = blocks[0].shape[1]
-    inter = cv2.INTER_LINEAR if bilinear else cv2.INTER_NEAREST
-    # the tall images: cv2.remap takes fewer than SHRT_MAX rows, and float32 row
-    # coordinates under TALL_ROWS keep 1/1000 px; frames of more rows: one each
-    tall, rows = [], []
-    for block in blocks:
-        per = max(1, min(len(block), TALL_ROWS // h))
-        for lo in range(0, len(block), per):
-            sub = block[lo:lo + per]
-            tall.append(sub.reshape(-1, sub.shape[2]))
-            rows.append(h * np.arange(len(sub), dtype=f32))
-    rows = np.concatenate(rows)[:, None, None]                          # (F, 1, 1)
-    dt = np.asarray(dts, f32)[:, None, None]
-    n_f = len(dt)
     total = np.zeros((n, hyp), f32)
-    x0, y0 = cc[..., 0].astype(f32), cc[..., 1].astype(f32)           # (n, hyp)
-    vx, vy = vv[..., 0].astype(f32), vv[..., 1].astype(f32)           # (n, hyp or 1)
-    chunk = max(1, min(n, _budget(blocks) // (hyp * n_f), (_SHRT_MAX - 1) // hyp))
-    for a in range(0, n, chunk):             # one round unless n x hyp x F is large
-        sl = slice(a, a + chunk)
-        k = len(total[sl])
-        mx = np.empty((n_f, k, hyp), f32)
-        my = np.empty((n_f, k, hyp), f32)
-        if vx.shape[1] == 1:
-            # one velocity for all hypotheses of a segment: the motion v dt is (F, k, 1),
-            # and the maps are written in one pass each
-            np.add(vx[sl] * dt, x0[sl], out=mx)
-            np.add(vy[sl] * dt, y0[sl], out=my)
-        else:
-            np.multiply(vx[sl], dt, out=mx)
-            mx += x0[sl]
-            np.multiply(vy[sl], dt, out=my)
-            my += y0[sl]
-        if shift is not None:
-            mx += shift[:, 0, None, None]
-            my += shift[:, 1, None, None]
-        np.clip(my, 0, h - 1, out=my)
-        my += rows
-        first = 0
-        for img in tall:
-            m = len(img) // h
-            s = cv2.remap(img, mx[first:first + m].reshape(m, k * hyp),
-                          my[first:first + m].reshape(m, k * hyp), inter,
-                          borderMode=cv2.BORDER_REPLICATE)
-            if cap is not None:
-                np.minimum(s, cap, out=s)
-            total[sl] += s.reshape(m, k, hyp).sum(axis=0)
-            first += m
+    if n == 0 or hyp == 0:
+        return total
+    c = np.asarray(cc, f32)
+    v = np.asarray(vv, f32)
+    shift = (np.zeros((len(dts), 2), f32) if shift is None
+             else np.ascontiguousarray(shift, f32))
+    track_sums(tuple(blocks), np.ascontiguousarray(dts, f32), shift,
+               np.ascontiguousarray(c[..., 0]), np.ascontiguousarray(c[..., 1]),
+               np.ascontiguousarray(v[..., 0]), np.ascontiguousarray(v[..., 1]), bool(bilinear),
+               f32(np.inf if cap is None else cap), total)
     return total
 
+
+def _grid_sums(blocks, dts, c, v, leads, shift=None, cap=None):
+    """Nearest-pixel track sums of the coarse stage: for each lead, the 3 x 3 grid of
+    ``_COARSE`` (1) px around c + v lead at velocity v; (n, len(leads) x 9) float32 in the
+    order of ``np.tile(_GRID, (len(leads), 1))`` (the compiled
+    ``irdetect.kernels.sampling.patch_sums``, one per lead)."""
+    f32 = np.float32
+    n = len(c)
+    total = np.zeros((n, len(leads) * len(_GRID)), f32)
+    shift = (np.zeros((len(dts), 2), f32) if shift is None
+             else np.ascontiguousarray(shift, f32))
+    cap = f32(np.inf if cap is None else cap)
+    vx, vy = (np.ascontiguousarray(v[:, i], f32) for i in (0, 1))
+    out = np.empty((n, len(_GRID)), f32)
+    for i, lead in enumerate(leads):
+        at = (c + v * lead).astype(f32)
+        patch_sums(tuple(blocks), np.ascontiguousarray(dts, f32), shift,
+                   np.ascontiguousarray(at[:, 0]), np.ascontiguousarray(at[:, 1]), vx, vy, 1,
+                   cap, out)
+        total[:, i * len(_GRID):(i + 1) * len(_GRID)] = out
+    return total
 
 
 def verify_tracks(evidence: Evidence, points: np.ndarray, *, verify: float = 6.5,

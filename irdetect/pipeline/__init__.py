@@ -25,7 +25,7 @@ from typing import Iterator
 
 import numpy as np
 
-from irdetect import tables
+from irdetect import kernels, tables
 from irdetect.combine import frames_needed, window_starts
 from irdetect.config import ProcessConfig, to_json
 from irdetect.errors import InputError, refused_settings
@@ -152,6 +152,7 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
     shape = tuple(frames.shape)
     if len(shape) != 3:
         raise ValueError(f"frames must have shape (T, H, W), got {shape}")
+    kernels.warm_up()
     n_frames = shape[0]
     config = fit_config(config, n_frames)
     cc = config.combine

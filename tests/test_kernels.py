@@ -1,0 +1,167 @@
+"""The compiled kernels (``irdetect.kernels``) against the numpy / OpenCV code they
+replaced, kept here as the reference; their cache; threads."""
+
+import os
+import shutil
+import subprocess
+import sys
+import sysconfig
+import tempfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from irdetect.io import write_sequence
+from irdetect.kernels.peaks import local_maxima
+from irdetect.kernels.sampling import patch_sums, track_sums
+from irdetect.pipeline import detect_sequence
+from irdetect.simulate import simulate
+
+ROOT = Path(__file__).resolve().parents[1]
+f32 = np.float32
+
+
+def remap_sums(blocks, dts, x0, y0, vx, vy, bilinear, shift, cap):
+    """The numpy / OpenCV track sums the kernel replaced: maps x0 + vx dt + shift per
+    frame, y clipped to the frame, one ``cv2.remap`` (border replicated) per frame."""
+    frames = np.concatenate(blocks)
+    h = frames.shape[1]
+    total = np.zeros(x0.shape, f32)
+    inter = cv2.INTER_LINEAR if bilinear else cv2.INTER_NEAREST
+    for f, dt in enumerate(dts):
+        mx = (vx * dt + x0 + shift[f, 0]).astype(f32)
+        my = np.clip((vy * dt + y0 + shift[f, 1]).astype(f32), 0, h - 1)
+        s = cv2.remap(frames[f], mx, my, inter, borderMode=cv2.BORDER_REPLICATE)
+        total += np.minimum(s, cap)
+    return total
+
+
+def _tracks(rng, n, hyp, h, w, per_hypothesis=True):
+    x0 = rng.uniform(-4, w + 4, (n, 1)) + rng.uniform(-2, 2, (n, hyp))
+    y0 = rng.uniform(-4, h + 4, (n, 1)) + rng.uniform(-2, 2, (n, hyp))
+    v = rng.uniform(-1.5, 1.5, (2, n, hyp if per_hypothesis else 1))
+    return [np.ascontiguousarray(a, f32) for a in (x0, y0, v[0], v[1])]
+
+
+@pytest.mark.parametrize("bilinear", [False, True])
+@pytest.mark.parametrize("n_blocks", [1, 3])
+def test_track_sums_match_remap(bilinear, n_blocks):
+    rng = np.random.default_rng(n_blocks + 10 * bilinear)
+    h, w = 40, 56
+    blocks = tuple(rng.normal(size=(6, h, w)).astype(f32) for _ in range(n_blocks))
+    n_f = 6 * n_blocks
+    dts = (np.arange(n_f) - (n_f - 1) / 2).astype(f32)
+    shift = rng.uniform(-3, 3, (n_f, 2)).astype(f32)
+    for per_hypothesis in (True, False):
+        x0, y0, vx, vy = _tracks(rng, 30, 7, h, w, per_hypothesis)
+        for cap in (f32(np.inf), f32(1.5)):
+            got = track_sums(blocks, dts, shift, x0, y0, vx, vy, bilinear, cap,
+                             np.zeros(x0.shape, f32))
+            want = remap_sums(blocks, dts, x0, y0, np.broadcast_to(vx, x0.shape),
+                              np.broadcast_to(vy, x0.shape), bilinear, shift, cap)
+            np.testing.assert_allclose(got, want, atol=2e-5 * n_f)
+            if cap < np.inf:
+                assert (got <= cap * n_f + 1e-4).all()
+
+
+def test_patch_sums_are_the_grid_of_nearest_track_sums():
+    rng = np.random.default_rng(3)
+    h, w = 30, 45
+    blocks = tuple(rng.normal(size=(5, h, w)).astype(f32) for _ in range(2))
+    dts = (np.arange(10) - 4.5).astype(f32)
+    shift = rng.uniform(-2, 2, (10, 2)).astype(f32)
+    x0, y0, vx, vy = (a[:, 0].copy() for a in _tracks(rng, 50, 1, h, w))
+    for radius in (1, 2):
+        m = 2 * radius + 1
+        got = patch_sums(blocks, dts, shift, x0, y0, vx, vy, radius, f32(2.0),
+                         np.zeros((50, m * m), f32))
+        d = np.arange(-radius, radius + 1, dtype=f32)
+        gx, gy = (g.ravel() for g in np.meshgrid(d, d, indexing="ij"))
+        want = remap_sums(blocks, dts, x0[:, None] + gx, y0[:, None] + gy,
+                          np.repeat(vx[:, None], m * m, 1), np.repeat(vy[:, None], m * m, 1),
+                          False, shift, f32(2.0))
+        np.testing.assert_allclose(got, want, atol=1e-5)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_local_maxima_match_the_dilation(seed):
+    rng = np.random.default_rng(seed)
+    m = cv2.GaussianBlur(rng.normal(size=(37, 53)).astype(f32), (0, 0), 1.0)
+    m[5, 7:9] = 3.0                          # a plateau: both pixels are maxima
+    peak = (m >= 0.3) & (m >= cv2.dilate(m, np.ones((3, 3), np.uint8)))
+    peak[[0, -1], :] = peak[:, [0, -1]] = False
+    ys, xs = np.empty(m.size, np.int64), np.empty(m.size, np.int64)
+    n = local_maxima(m, f32(0.3), ys, xs)
+    want_y, want_x = np.nonzero(peak)
+    assert n == len(want_y) > 3
+    np.testing.assert_array_equal(ys[:n], want_y)
+    np.testing.assert_array_equal(xs[:n], want_x)
+
+
+def test_one_and_two_threads_give_the_same_tables():
+    # the kernels release the GIL: the correlation of a triple runs beside the next
+    # windows' front end on the other core; results must not depend on it
+    frames, _ = simulate("clutter", rng=4, n_frames=96)
+    one = detect_sequence(frames, workers=1)
+    two = detect_sequence(frames, workers=2)
+    assert len(one["detections"]) > 0
+    for name, rows in one.items():
+        assert rows.tobytes() == two[name].tobytes(), name
+
+
+def _run_as(user, *args, env, cwd):
+    """``python -S -c args[0] args[1:]`` as ``user`` (setpriv's options, or none)."""
+    return subprocess.run([*user, sys.executable, "-S", "-c", *args], env=env, cwd=cwd,
+                          capture_output=True, text=True)
+
+
+@pytest.mark.slow
+def test_read_only_install_caches_kernels_in_the_user_cache(tmp_path):
+    # irdetect installed into a prefix nobody may write: numba cannot cache beside the
+    # modules, so the first run compiles into the user's cache directory and says so
+    # once; the second run loads them and says nothing. Root writes where the mode says
+    # no: as root the runs are nobody's, in a folder nobody can reach (pytest's tmp_path
+    # lies under a folder only its owner may enter)
+    user = []
+    base = tmp_path
+    if os.geteuid() == 0:
+        user = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups"]
+        base = Path(tempfile.mkdtemp(prefix="irdetect-ro-"))
+        base.chmod(0o777)
+    prefix, cache = base / "site", base / "cache"
+    try:
+        subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--no-deps",
+                        "--disable-pip-version-check", "--target", str(prefix), str(ROOT)],
+                       check=True, capture_output=True)
+        seq = base / "seq.h5"
+        write_sequence(seq, simulate("wan2008", snr=4.0, rng=2, n_frames=48)[0])
+        seq.chmod(0o644)
+        cache.mkdir(mode=0o777)
+        cache.chmod(0o777)
+        for p in [prefix, *prefix.rglob("*")]:
+            p.chmod(p.stat().st_mode & ~0o222)
+        # -S: no .pth files, so not the development checkout's editable install; the
+        # prefix first, then the environment's other packages (numpy, numba...)
+        env = {**os.environ, "XDG_CACHE_HOME": str(cache), "HOME": str(base),
+               "PYTHONPATH": os.pathsep.join([str(prefix), sysconfig.get_paths()["purelib"]])}
+        env.pop("NUMBA_CACHE_DIR", None)
+        where = _run_as(user, "import irdetect; print(irdetect.__file__)", env=env, cwd=base)
+        assert where.stdout.startswith(str(prefix)), where.stderr     # the installed copy
+        logs = []
+        for k in range(2):
+            r = _run_as(user, "import sys; from irdetect.cli import main; "
+                        "sys.exit(main(sys.argv[1:]))", "process", str(seq),
+                        "-o", str(base / f"r{k}.h5"), env=env, cwd=base)
+            assert r.returncode == 0, r.stderr
+            logs.append(r.stderr)
+        assert "compiling kernels, once" in logs[0]
+        assert "compiling kernels" not in logs[1]
+        assert list(cache.rglob("*.nbi")), "no kernel cached in the user cache directory"
+        assert not list(prefix.rglob("*.nbi"))
+    finally:
+        for p in [prefix, *prefix.rglob("*")] if prefix.exists() else []:
+            p.chmod(p.stat().st_mode | 0o200)
+        if base != tmp_path:
+            shutil.rmtree(base, ignore_errors=True)
