@@ -182,10 +182,11 @@ def test_verification_rejects_a_moving_edge():
 
 @pytest.mark.parametrize("shape, bilinear, atol", [((12, 40, 30), True, 2e-4),
                                                    ((12, 40, 30), False, 2e-4),
-                                                   ((5, 3000, 12), True, 2e-4)])
+                                                   ((5, 3000, 12), True, 2e-3)])
 def test_track_sums_match_direct_interpolation(shape, bilinear, atol):
     # the compiled sampler (``irdetect.kernels.sampling``) against scipy's
-    # interpolation, positions clamped to the frame, on small and on tall frames
+    # interpolation, positions clamped to the frame, on small and on tall frames (float32
+    # positions near row 3000 keep 1/4000 px: the looser tolerance)
     from scipy.ndimage import map_coordinates
 
     from irdetect.verify import _sample_sum
