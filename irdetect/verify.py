@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from irdetect.kernels.sampling import patch_sums, track_sums
+from irdetect.kernels.sampling import climb, patch_sums, track_sums
 from irdetect.robust import median, median_mad_sigma, tile_map, tile_samples
 
 
@@ -151,7 +151,8 @@ def noise_level(frames) -> float:
 _COARSE = 1.0
 _REFINE = ((0.5, 0.05), (0.25, 0.025))
 REFINE_ROUNDS = 3
-_GRID = np.array(np.meshgrid((-1.0, 0.0, 1.0), (-1.0, 0.0, 1.0), indexing="ij")).reshape(2, -1).T
+_GRID = np.ascontiguousarray(
+    np.array(np.meshgrid((-1.0, 0.0, 1.0), (-1.0, 0.0, 1.0), indexing="ij")).reshape(2, -1).T)
 
 
 def track_significance(evidence: Evidence, points: np.ndarray, screen: float = -np.inf):
@@ -185,12 +186,12 @@ def track_significance(evidence: Evidence, points: np.ndarray, screen: float = -
     The coarse stage takes the best of a 3 x 3 grid of ``_COARSE`` px around the line
     moved ahead by each lead, on the nearest pixel (a 1-px grid on PSF-smoothed
     frames). The refinement is a bilinear hill climb for each of the ``_REFINE`` steps
-    (``_climb``): a round samples the 3 x 3 positions around c at velocity v and the
+    (``_refine``): a round samples the 3 x 3 positions around c at velocity v and the
     3 x 3 velocities around v at position c, and moves both to their bests, until
     neither moves or ``REFINE_ROUNDS``. It reaches 3 steps away where one joint
     3 x 3 x 3 x 3 grid per step (the earlier search) reached one, with at most 108
-    hypotheses per segment instead of 162. Sampling is by the compiled ``_sample_sum``
-    over all segments and hypotheses at once.
+    hypotheses per segment instead of 162. Both stages are compiled kernels
+    (``irdetect.kernels.sampling``: ``patch_sums``, ``climb``).
     """
     p = np.asarray(points, np.float64).reshape(-1, 3, 2)
     if len(p) == 0:
@@ -212,42 +213,25 @@ def track_significance(evidence: Evidence, points: np.ndarray, screen: float = -
     best = total.argmax(1)
     k = np.arange(len(p))
     c, z[:] = cc[k, best], total[k, best] / norm
-    live = np.flatnonzero(z >= screen)
-    for dc, dv in _REFINE:
-        rows = live
-        for _ in range(REFINE_ROUNDS):
-            if len(rows) == 0:
-                break
-            rows = _climb(frames, dts, rows, c, v, z, norm, dc * _GRID, dv * _GRID, kw)
-        if len(rows):
-            # still moving after the last round: the statistic where c, v are now
-            z[rows] = _sample_sum(frames, dts, c[rows, None], v[rows, None], True,
-                                  **kw)[:, 0] / norm
-        # the screen again after each step: a chain whose bilinear statistic fell under
-        # it is not refined further (37 % of the refined chains after the first step on
-        # check_identity's scenes and the 13 real sequences, where the lowest statistic
-        # after it of a chain that passed ``verify`` was 3.56, 1.4 x the screen)
-        live = live[z[live] >= screen]
+    _refine(frames, dts, c, v, z, np.flatnonzero(z >= screen), norm, screen, kw)
     return z, c, v
 
 
-def _climb(frames, dts, rows, c, v, z, norm, dcs, dvs, kw=None) -> np.ndarray:
-    """One round of the hill climb of ``track_significance`` for ``rows``.
+def _refine(frames, dts, c, v, z, rows, norm, screen, kw) -> None:
+    """The hill climb of ``track_significance`` for ``rows`` (those past the coarse
+    screen), c, v and z in place (the compiled ``irdetect.kernels.sampling.climb``)."""
+    dts, shift, cap = _kernel_args(dts, **kw)
+    climb(tuple(frames), dts, shift, c, v, z, rows.astype(np.int64), float(norm),
+          np.array(_REFINE, np.float64), _GRID, REFINE_ROUNDS, float(screen), cap)
 
-    Samples the positions c + dcs at velocity v and the velocities v + dvs at position
-    c (``dcs``, ``dvs`` (9, 2), each with a zero row) in one call, and moves c and v of
-    each row to their bests in place; z gets the larger of the two best statistics (the
-    statistic at the new c, v unless both moved). Returns the rows that moved.
-    """
-    r, nc, nv = rows, len(dcs), len(dvs)
-    cc = np.concatenate([c[r, None] + dcs, np.repeat(c[r, None], nv, 1)], 1)
-    vv = np.concatenate([np.repeat(v[r, None], nc, 1), v[r, None] + dvs], 1)
-    total = _sample_sum(frames, dts, cc, vv, bilinear=True, **(kw or {}))
-    bc, bv = total[:, :nc].argmax(1), nc + total[:, nc:].argmax(1)
-    k = np.arange(len(r))
-    z[r] = np.maximum(total[k, bc], total[k, bv]) / norm
-    c[r], v[r] = cc[k, bc], vv[k, bv]
-    return r[(dcs[bc] != 0).any(1) | (dvs[bv - nc] != 0).any(1)]
+
+def _kernel_args(dts, shift=None, cap=None):
+    """The kernels' float32 times (F,), offsets (F, 2) (zeros for None) and cap (inf for
+    None)."""
+    f32 = np.float32
+    shift = (np.zeros((len(dts), 2), f32) if shift is None
+             else np.ascontiguousarray(shift, f32))
+    return np.ascontiguousarray(dts, f32), shift, f32(np.inf if cap is None else cap)
 
 
 #: a verified track must be a point: its statistic at RING_PX px to either side, in 8
@@ -383,12 +367,10 @@ def _sample_sum(blocks, dts, cc, vv, bilinear, shift=None, cap=None):
         return total
     c = np.asarray(cc, f32)
     v = np.asarray(vv, f32)
-    shift = (np.zeros((len(dts), 2), f32) if shift is None
-             else np.ascontiguousarray(shift, f32))
-    track_sums(tuple(blocks), np.ascontiguousarray(dts, f32), shift,
-               np.ascontiguousarray(c[..., 0]), np.ascontiguousarray(c[..., 1]),
-               np.ascontiguousarray(v[..., 0]), np.ascontiguousarray(v[..., 1]), bool(bilinear),
-               f32(np.inf if cap is None else cap), total)
+    dts, shift, cap = _kernel_args(dts, shift, cap)
+    track_sums(tuple(blocks), dts, shift, np.ascontiguousarray(c[..., 0]),
+               np.ascontiguousarray(c[..., 1]), np.ascontiguousarray(v[..., 0]),
+               np.ascontiguousarray(v[..., 1]), bool(bilinear), cap, total)
     return total
 
 
@@ -400,14 +382,12 @@ def _grid_sums(blocks, dts, c, v, leads, shift=None, cap=None):
     f32 = np.float32
     n = len(c)
     total = np.zeros((n, len(leads) * len(_GRID)), f32)
-    shift = (np.zeros((len(dts), 2), f32) if shift is None
-             else np.ascontiguousarray(shift, f32))
-    cap = f32(np.inf if cap is None else cap)
+    dts, shift, cap = _kernel_args(dts, shift, cap)
     vx, vy = (np.ascontiguousarray(v[:, i], f32) for i in (0, 1))
     out = np.empty((n, len(_GRID)), f32)
     for i, lead in enumerate(leads):
         at = (c + v * lead).astype(f32)
-        patch_sums(tuple(blocks), np.ascontiguousarray(dts, f32), shift,
+        patch_sums(tuple(blocks), dts, shift,
                    np.ascontiguousarray(at[:, 0]), np.ascontiguousarray(at[:, 1]), vx, vy, 1,
                    cap, out)
         total[:, i * len(_GRID):(i + 1) * len(_GRID)] = out

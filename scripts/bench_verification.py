@@ -48,31 +48,28 @@ SCENES = (("wan2008 SNR 2", "wan2008", 2.0, 0), ("wan2008 SNR 3", "wan2008", 3.0
 
 class RefineCounter:
     """Wraps ``verify.track_significance`` to count the chains it gets, and its hill
-    climb (``verify._climb``) to count those it refines (whose coarse statistic
-    passed the screen: the rows of any round)."""
+    climb (``verify._refine``) to count those it refines (whose coarse statistic
+    passed the screen)."""
 
     def __init__(self):
-        self.originals = verify_module.track_significance, verify_module._climb
+        self.originals = verify_module.track_significance, verify_module._refine
         self.chains = self.refined = 0
-        self._rows: set = set()
 
     def __call__(self, evidence, points, screen=-np.inf):
-        self._rows = set()
         z, c, v = self.originals[0](evidence, points, screen)
         self.chains += len(z)
-        self.refined += len(self._rows)
         return z, c, v
 
-    def _climb(self, frames, dts, rows, *args):
-        self._rows.update(rows.tolist())
-        return self.originals[1](frames, dts, rows, *args)
+    def _refine(self, frames, dts, c, v, z, rows, *args):
+        self.refined += len(rows)
+        return self.originals[1](frames, dts, c, v, z, rows, *args)
 
     def __enter__(self):
-        verify_module.track_significance, verify_module._climb = self, self._climb
+        verify_module.track_significance, verify_module._refine = self, self._refine
         return self
 
     def __exit__(self, *exc):
-        verify_module.track_significance, verify_module._climb = self.originals
+        verify_module.track_significance, verify_module._refine = self.originals
 
 
 def run_file(seq: Path, out: Path, config: ProcessConfig) -> dict:
