@@ -378,19 +378,15 @@ def _grid_sums(blocks, dts, c, v, leads, shift=None, cap=None):
     """Nearest-pixel track sums of the coarse stage: for each lead, the 3 x 3 grid of
     ``_COARSE`` (1) px around c + v lead at velocity v; (n, len(leads) x 9) float32 in the
     order of ``np.tile(_GRID, (len(leads), 1))`` (the compiled
-    ``irdetect.kernels.sampling.patch_sums``, one per lead)."""
+    ``irdetect.kernels.sampling.patch_sums``)."""
     f32 = np.float32
-    n = len(c)
-    total = np.zeros((n, len(leads) * len(_GRID)), f32)
+    total = np.zeros((len(c), len(leads) * len(_GRID)), f32)
     dts, shift, cap = _kernel_args(dts, shift, cap)
+    at = (c[:, None, :] + v[:, None, :] * np.asarray(leads, np.float64)[None, :, None]
+          ).astype(f32)                                            # (n, leads, 2)
     vx, vy = (np.ascontiguousarray(v[:, i], f32) for i in (0, 1))
-    out = np.empty((n, len(_GRID)), f32)
-    for i, lead in enumerate(leads):
-        at = (c + v * lead).astype(f32)
-        patch_sums(tuple(blocks), dts, shift,
-                   np.ascontiguousarray(at[:, 0]), np.ascontiguousarray(at[:, 1]), vx, vy, 1,
-                   cap, out)
-        total[:, i * len(_GRID):(i + 1) * len(_GRID)] = out
+    patch_sums(tuple(blocks), dts, shift, np.ascontiguousarray(at[..., 0]),
+               np.ascontiguousarray(at[..., 1]), vx, vy, 1, cap, total)
     return total
 
 

@@ -121,34 +121,42 @@ def track_sums(blocks, dts, shift, x0, y0, vx, vy, bilinear, cap, out):
 
 @jit
 def patch_sums(blocks, dts, shift, x0, y0, vx, vy, radius, cap, out):
-    """Nearest-pixel track sums of a (2 radius + 1)^2 grid of 1-px steps around each track.
+    """Nearest-pixel track sums of a (2 radius + 1)^2 grid of 1-px steps around each of
+    L starting points of each track.
 
-    out[i, (dx + radius) (2 radius + 1) + dy + radius] = sum_f min(S_f(rint(x_f) + dx,
-    rint(y_f) + dy), cap), x_f = x0[i] + vx[i] dts[f] + shift[f, 0] (y_f alike), for
-    dx, dy in -radius..radius: the coarse stage of ``irdetect.verify.track_significance``
-    (``track_sums`` with ``bilinear=False`` over the grid's hypotheses), each frame's
-    samples read from one patch instead of one rounding per hypothesis.
+    out[i, l m^2 + (dx + radius) m + dy + radius] = sum_f min(S_f(rint(x_f) + dx,
+    rint(y_f) + dy), cap), m = 2 radius + 1, x_f = x0[i, l] + vx[i] dts[f] + shift[f, 0]
+    (y_f alike), for dx, dy in -radius..radius: the coarse stage of
+    ``irdetect.verify.track_significance`` (``track_sums`` with ``bilinear=False`` over
+    the grids' hypotheses), each frame's samples read from L patches instead of one
+    rounding per hypothesis.
 
     Parameters
     ----------
     blocks, dts, shift, cap
         As ``track_sums``.
-    x0, y0, vx, vy : float32 ndarray (n,)
-        Each track's centre (x = column, y = row) at the middle frame and velocity.
+    x0, y0 : float32 ndarray (n, L)
+        Each track's L starting points (x = column, y = row) at the middle frame (the
+        verification's leads: the line moved ahead by 1, 3, 5, 7 frames).
+    vx, vy : float32 ndarray (n,)
+        Each track's velocity, px/frame.
     radius : int
         The grid's half-width (1: 3 x 3).
-    out : float32 ndarray (n, (2 radius + 1)^2)
-        The sums, written in place; hypotheses in the order of ``np.meshgrid(d, d,
-        indexing="ij")`` over (dx, dy), dx the slow index.
+    out : float32 ndarray (n, L m^2)
+        The sums, written in place; per starting point, hypotheses in the order of
+        ``np.meshgrid(d, d, indexing="ij")`` over (dx, dy), dx the slow index.
 
     Notes
     -----
     rint(x) + dx is rint(x + dx) except at exact half-pixel ties (round half to even),
-    where the numpy code's hypothesis x + dx could take the pixel beside.
+    where the numpy code's hypothesis x + dx could take the pixel beside. Tracks are
+    visited in order of their row, the L patches of a track in one frame together: they
+    lie within a few px, in the same cached rows.
     """
     m = 2 * radius + 1
-    acc = np.zeros(m * m, np.float32)
-    for i in np.argsort(y0):             # tracks in order of their row: rows cached
+    n_l = x0.shape[1]
+    acc = np.zeros(n_l * m * m, np.float32)
+    for i in np.argsort(y0[:, 0]):
         acc[:] = 0
         f = 0
         for blk in blocks:
@@ -156,15 +164,17 @@ def patch_sums(blocks, dts, shift, x0, y0, vx, vy, radius, cap, out):
             for k in range(blk.shape[0]):
                 img = blk[k]
                 dt = dts[f]
-                x = x0[i] + vx[i] * dt + shift[f, 0]
-                y = y0[i] + vy[i] * dt + shift[f, 1]
-                x = min(max(x, np.float32(-1 - radius)), np.float32(w + radius))
-                y = min(max(y, np.float32(-1 - radius)), np.float32(h + radius))
-                rx, ry = int(np.rint(x)) - radius, int(np.rint(y)) - radius
-                for a in range(m):
-                    col = _clamp(rx + a, w)
-                    for b in range(m):
-                        acc[a * m + b] += min(img[_clamp(ry + b, h), col], cap)
+                for l in range(n_l):
+                    x = x0[i, l] + vx[i] * dt + shift[f, 0]
+                    y = y0[i, l] + vy[i] * dt + shift[f, 1]
+                    x = min(max(x, np.float32(-1 - radius)), np.float32(w + radius))
+                    y = min(max(y, np.float32(-1 - radius)), np.float32(h + radius))
+                    rx, ry = int(np.rint(x)) - radius, int(np.rint(y)) - radius
+                    o = l * m * m
+                    for a in range(m):
+                        col = _clamp(rx + a, w)
+                        for b in range(m):
+                            acc[o + a * m + b] += min(img[_clamp(ry + b, h), col], cap)
                 f += 1
         out[i, :] = acc
     return out
@@ -253,5 +263,5 @@ def warm_up() -> None:
         climb(blocks, dts, shift, np.zeros((1, 2)), np.zeros((1, 2)), np.zeros(1),
               np.zeros(1, np.int64), 1.0, np.zeros((1, 2)), np.zeros((9, 2)), 1, 0.0,
               f32(np.inf))
-        patch_sums(blocks, dts, shift, a[0], a[0], a[0], a[0], 1, f32(np.inf),
+        patch_sums(blocks, dts, shift, a, a, a[0], a[0], 1, f32(np.inf),
                    np.zeros((1, 9), f32))
