@@ -386,7 +386,7 @@ def _grid_sums(blocks, dts, c, v, leads, shift=None, cap=None):
           ).astype(f32)                                            # (n, leads, 2)
     vx, vy = (np.ascontiguousarray(v[:, i], f32) for i in (0, 1))
     patch_sums(tuple(blocks), dts, shift, np.ascontiguousarray(at[..., 0]),
-               np.ascontiguousarray(at[..., 1]), vx, vy, 1, cap, total)
+               np.ascontiguousarray(at[..., 1]), vx, vy, cap, total)
     return total
 
 
