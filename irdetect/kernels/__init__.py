@@ -1,8 +1,7 @@
 """Compiled kernels (numba) of the per-pixel and per-chain loops of the stages.
 
-One module per stage they speed up: ``sampling`` (the verification's track sums),
-``peaks`` (the per-frame path's local maxima). Every
-kernel is ``njit(cache=True, nogil=True)`` (``jit``): compiled on its first call after an
+One module per stage they speed up: ``sampling`` (the verification's track sums, coarse
+grid and hill climb), ``peaks`` (the per-frame path's local maxima). Every kernel is ``njit(cache=True, nogil=True)`` (``jit``): compiled on its first call after an
 install and cached on disk (beside the module, or numba's user cache directory when the
 package directory is read-only), and it releases the GIL, so the pipeline's worker
 threads run kernels on both cores at once. ``warm_up`` compiles or loads them all before a

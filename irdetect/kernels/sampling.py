@@ -20,19 +20,30 @@ def _clamp(i, n):
 
 
 @jit
+def _axis(x, n):
+    """Bilinear sampling along one axis of n px: the two indices (clamped: a border
+    pixel replicated) and the weight of the second, float32 (x clamped to [-1, n]
+    first)."""
+    x = min(max(x, np.float32(-1)), np.float32(n))
+    fx = np.floor(x)
+    i = int(fx)
+    return _clamp(i, n), _clamp(i + 1, n), x - fx
+
+
+@jit
+def _row(y, h):
+    """``_axis`` for a row coordinate, clipped to [0, H - 1] first (the rows of one frame
+    only, as the tall-image ``cv2.remap`` of the numpy code)."""
+    return _axis(min(max(y, np.float32(0)), np.float32(h - 1)), h)
+
+
+@jit
 def _bilinear(img, x, y):
-    """img (H, W) at (x, y) bilinear; y clipped to [0, H - 1], x beyond the frame takes
-    its border column (``cv2.BORDER_REPLICATE``); float32."""
-    h, w = img.shape
+    """img (H, W) at (x, y) bilinear (``_axis``, ``_row``); float32."""
     one = np.float32(1)
-    y = min(max(y, np.float32(0)), np.float32(h - 1))
-    x = min(max(x, np.float32(-1)), np.float32(w))
-    fx, fy = np.floor(x), np.floor(y)
-    ax, ay = x - fx, y - fy
-    ix, iy = int(fx), int(fy)
-    ix0, ix1 = _clamp(ix, w), _clamp(ix + 1, w)
-    iy1 = _clamp(iy + 1, h)
-    top = img[iy, ix0] * (one - ax) + img[iy, ix1] * ax
+    ix0, ix1, ax = _axis(x, img.shape[1])
+    iy0, iy1, ay = _row(y, img.shape[0])
+    top = img[iy0, ix0] * (one - ax) + img[iy0, ix1] * ax
     bottom = img[iy1, ix0] * (one - ax) + img[iy1, ix1] * ax
     return top * (one - ay) + bottom * ay
 
@@ -187,16 +198,6 @@ def patch_sums(blocks, dts, shift, x0, y0, vx, vy, cap, out):
 
 
 @jit
-def _axis(x, n):
-    """Bilinear sampling along one axis of n px: the two indices (clamped) and the
-    weight of the second, float32, as ``_bilinear`` (x clamped to [-1, n] first)."""
-    x = min(max(x, np.float32(-1)), np.float32(n))
-    fx = np.floor(x)
-    i = int(fx)
-    return _clamp(i, n), _clamp(i + 1, n), x - fx
-
-
-@jit
 def _grid_sums(blocks, dts, shift, xs, ys, vxs, vys, cap, out):
     """Bilinear track sums of the 9 tracks (xs[a] + vxs[a] dt, ys[b] + vys[b] dt), a, b
     in 0..2, written to out[3 a + b] (float32 (9,)): a 3 x 3 grid in position or in
@@ -211,13 +212,8 @@ def _grid_sums(blocks, dts, shift, xs, ys, vxs, vys, cap, out):
             img = blk[k]
             dt = dts[f]
             for b in range(3):
-                y = min(max(ys[b] + vys[b] * dt + shift[f, 1], np.float32(0)),
-                        np.float32(h - 1))
-                fy = np.floor(y)
-                iy = int(fy)
-                ay = y - fy
-                iy1 = _clamp(iy + 1, h)
-                top_row, bottom_row = img[iy], img[iy1]
+                iy0, iy1, ay = _row(ys[b] + vys[b] * dt + shift[f, 1], h)
+                top_row, bottom_row = img[iy0], img[iy1]
                 for a in range(3):
                     ix0, ix1, ax = _axis(xs[a] + vxs[a] * dt + shift[f, 0], w)
                     top = top_row[ix0] * (one - ax) + top_row[ix1] * ax
