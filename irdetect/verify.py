@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from irdetect.kernels.sampling import climb, patch_sums, track_sums
+from irdetect.kernels.sampling import climb, patch_sums, row_order, track_sums
 from irdetect.robust import median, median_mad_sigma, tile_map, tile_samples
 
 
@@ -221,8 +221,20 @@ def _refine(frames, dts, c, v, z, rows, norm, screen, kw) -> None:
     """The hill climb of ``track_significance`` for ``rows`` (those past the coarse
     screen), c, v and z in place (the compiled ``irdetect.kernels.sampling.climb``)."""
     dts, shift, cap = _kernel_args(dts, **kw)
-    climb(tuple(frames), dts, shift, c, v, z, rows.astype(np.int64), float(norm),
+    rows = rows[row_order(c[rows, 1])]
+    climb(_three(frames), dts, shift, c, v, z, rows, float(norm),
           np.array(_REFINE, np.float64), _GRID, REFINE_ROUNDS, float(screen), cap)
+
+
+def _three(blocks) -> tuple:
+    """The evidence's blocks as the kernels take them: 3 float32 (F_j, H, W) arrays (the
+    pipeline's 3 windows; fewer padded with empty blocks, more joined into one), so each
+    kernel is compiled once, for one type."""
+    blocks = list(blocks)
+    if len(blocks) > 3:
+        blocks = [np.concatenate(blocks)]
+    empty = np.zeros((0,) + blocks[0].shape[1:], np.float32)
+    return tuple(blocks) + (empty,) * (3 - len(blocks))
 
 
 def _kernel_args(dts, shift=None, cap=None):
@@ -368,9 +380,10 @@ def _sample_sum(blocks, dts, cc, vv, bilinear, shift=None, cap=None):
     c = np.asarray(cc, f32)
     v = np.asarray(vv, f32)
     dts, shift, cap = _kernel_args(dts, shift, cap)
-    track_sums(tuple(blocks), dts, shift, np.ascontiguousarray(c[..., 0]),
-               np.ascontiguousarray(c[..., 1]), np.ascontiguousarray(v[..., 0]),
-               np.ascontiguousarray(v[..., 1]), bool(bilinear), cap, total)
+    y0 = np.ascontiguousarray(c[..., 1])
+    track_sums(_three(blocks), dts, shift, np.ascontiguousarray(c[..., 0]), y0,
+               np.ascontiguousarray(v[..., 0]), np.ascontiguousarray(v[..., 1]),
+               bool(bilinear), cap, row_order(y0[:, 0]), total)
     return total
 
 
@@ -385,8 +398,9 @@ def _grid_sums(blocks, dts, c, v, leads, shift=None, cap=None):
     at = (c[:, None, :] + v[:, None, :] * np.asarray(leads, np.float64)[None, :, None]
           ).astype(f32)                                            # (n, leads, 2)
     vx, vy = (np.ascontiguousarray(v[:, i], f32) for i in (0, 1))
-    patch_sums(tuple(blocks), dts, shift, np.ascontiguousarray(at[..., 0]),
-               np.ascontiguousarray(at[..., 1]), vx, vy, cap, total)
+    y0 = np.ascontiguousarray(at[..., 1])
+    patch_sums(_three(blocks), dts, shift, np.ascontiguousarray(at[..., 0]), y0, vx, vy, cap,
+               row_order(y0[:, 0]), total)
     return total
 
 

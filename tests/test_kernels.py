@@ -1,5 +1,6 @@
 """The compiled kernels (``irdetect.kernels``) against the numpy / OpenCV code they
-replaced, kept here as the reference; their cache; threads."""
+replaced, kept here as the reference; their cache; threads. Blocks go in as the
+verification passes them (``verify._three``: the one type each kernel is compiled for)."""
 
 import os
 import shutil
@@ -15,9 +16,10 @@ import pytest
 
 from irdetect.io import write_sequence
 from irdetect.kernels.peaks import local_maxima
-from irdetect.kernels.sampling import climb, patch_sums, track_sums
+from irdetect.kernels.sampling import climb, patch_sums, row_order, track_sums
 from irdetect.pipeline import detect_sequence
 from irdetect.simulate import simulate
+from irdetect.verify import _three
 
 ROOT = Path(__file__).resolve().parents[1]
 f32 = np.float32
@@ -57,8 +59,8 @@ def test_track_sums_match_remap(bilinear, n_blocks):
     for per_hypothesis in (True, False):
         x0, y0, vx, vy = _tracks(rng, 30, 7, h, w, per_hypothesis)
         for cap in (f32(np.inf), f32(1.5)):
-            got = track_sums(blocks, dts, shift, x0, y0, vx, vy, bilinear, cap,
-                             np.zeros(x0.shape, f32))
+            got = track_sums(_three(blocks), dts, shift, x0, y0, vx, vy, bilinear, cap,
+                             row_order(y0[:, 0]), np.zeros(x0.shape, f32))
             want = remap_sums(blocks, dts, x0, y0, np.broadcast_to(vx, x0.shape),
                               np.broadcast_to(vy, x0.shape), bilinear, shift, cap)
             np.testing.assert_allclose(got, want, atol=2e-5 * n_f)
@@ -74,7 +76,8 @@ def test_patch_sums_are_the_grid_of_nearest_track_sums():
     shift = rng.uniform(-2, 2, (10, 2)).astype(f32)
     x0, y0, vx, vy = _tracks(rng, 50, 2, h, w)             # 2 starting points per track
     vx, vy = vx[:, 0].copy(), vy[:, 0].copy()
-    got = patch_sums(blocks, dts, shift, x0, y0, vx, vy, f32(2.0), np.zeros((50, 18), f32))
+    got = patch_sums(_three(blocks), dts, shift, x0, y0, vx, vy, f32(2.0), row_order(y0[:, 0]),
+                     np.zeros((50, 18), f32))
     d = np.arange(-1, 2, dtype=f32)
     gx, gy = (g.ravel() for g in np.meshgrid(d, d, indexing="ij"))
     for lead in range(2):
@@ -133,7 +136,8 @@ def test_climb_matches_the_numpy_rounds():
     steps = np.array(_REFINE, np.float64)
     got = [c0.copy(), v0.copy(), np.zeros(6)]
     want = [c0.copy(), v0.copy(), np.zeros(6)]
-    climb(blocks, dts, shift, *got, rows, norm, steps, _GRID, REFINE_ROUNDS, 0.5, f32(8))
+    climb(_three(blocks), dts, shift, *got, rows, norm, steps, _GRID, REFINE_ROUNDS, 0.5,
+          f32(8))
     numpy_climb(blocks, dts, shift, *want, rows, norm, steps, _GRID, REFINE_ROUNDS, 0.5,
                 f32(8))
     np.testing.assert_allclose(got[0], want[0], atol=1e-6)

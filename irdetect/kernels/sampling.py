@@ -73,7 +73,7 @@ def _track_sum(blocks, dts, shift, x0, y0, vx, vy, cap):
 
 
 @jit
-def track_sums(blocks, dts, shift, x0, y0, vx, vy, bilinear, cap, out):
+def track_sums(blocks, dts, shift, x0, y0, vx, vy, bilinear, cap, order, out):
     """sum_f min(S_f(x0 + vx dts[f] + shift[f, 0], y0 + vy dts[f] + shift[f, 1]), cap).
 
     Parameters
@@ -92,15 +92,17 @@ def track_sums(blocks, dts, shift, x0, y0, vx, vy, bilinear, cap, out):
         Bilinear interpolation, else the nearest pixel (round half to even, as OpenCV).
     cap : float32
         Each sample counts at most ``cap`` (inf: no cap).
+    order : int64 ndarray (n,)
+        The order in which to visit the rows (``row_order``).
     out : float32 ndarray (n, hyp)
         The sums, written in place.
 
     Notes
     -----
-    The rows are visited in order of their y at the middle frame, so neighbouring tracks
-    read the same cached rows of each frame (3-4x faster than in input order on 256x256
-    and 640x512 frames, which do not fit the cache 36 at a time); each row's sum is
-    unchanged by it. Positions outside a frame take its border pixels' values
+    Rows visited in order of their y at the middle frame (``row_order``) read the same
+    cached rows of each frame one after the other (3-4x faster than in input order on
+    256x256 and 640x512 frames, which do not fit the cache 36 at a time); each row's sum
+    is unchanged by the order. Positions outside a frame take its border pixels' values
     (``cv2.BORDER_REPLICATE``); y is clipped to [0, H - 1] first, as the tall-image
     ``cv2.remap`` of the numpy code did (``tests/test_kernels.py`` keeps it as the
     reference). Sums are float32, frame by frame, so they agree with it to float32
@@ -109,7 +111,7 @@ def track_sums(blocks, dts, shift, x0, y0, vx, vy, bilinear, cap, out):
     n, hyp = x0.shape
     one_v = vx.shape[1] == 1
     acc = np.zeros(hyp, np.float32)
-    for i in np.argsort(y0[:, 0]):       # rows in order of their place: frames' rows cached
+    for i in order:
         acc[:] = 0
         f = 0
         for blk in blocks:
@@ -131,7 +133,7 @@ def track_sums(blocks, dts, shift, x0, y0, vx, vy, bilinear, cap, out):
 
 
 @jit
-def patch_sums(blocks, dts, shift, x0, y0, vx, vy, cap, out):
+def patch_sums(blocks, dts, shift, x0, y0, vx, vy, cap, order, out):
     """Nearest-pixel track sums of the 3 x 3 grid of 1-px steps around each of L
     starting points of each track.
 
@@ -150,6 +152,8 @@ def patch_sums(blocks, dts, shift, x0, y0, vx, vy, cap, out):
         verification's leads: the line moved ahead by 1, 3, 5, 7 frames).
     vx, vy : float32 ndarray (n,)
         Each track's velocity, px/frame.
+    order : int64 ndarray (n,)
+        The order in which to visit the tracks (``row_order``).
     out : float32 ndarray (n, 9 L)
         The sums, written in place; per starting point, hypotheses in the order of
         ``np.meshgrid(d, d, indexing="ij")`` over (dx, dy), dx the slow index.
@@ -157,12 +161,12 @@ def patch_sums(blocks, dts, shift, x0, y0, vx, vy, cap, out):
     Notes
     -----
     rint(x) + dx is rint(x + dx) except at exact half-pixel ties (round half to even),
-    where the numpy code's hypothesis x + dx could take the pixel beside. Tracks are
-    visited in order of their row, each starting point's 9 sums in registers over the
-    frames (3x faster than 9 sums in an array on the pipeline's chains).
+    where the numpy code's hypothesis x + dx could take the pixel beside. Each starting
+    point's 9 sums stay in registers over the frames (3x faster than 9 sums in an array
+    on the pipeline's chains).
     """
     n_l = x0.shape[1]
-    for i in np.argsort(y0[:, 0]):
+    for i in order:
         for l in range(n_l):
             s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = np.float32(0)
             f = 0
@@ -236,7 +240,8 @@ def climb(blocks, dts, shift, c, v, z, rows, norm, steps, grid, rounds, screen, 
     z : float64 ndarray (n,)
         Their statistics (track sum / ``norm``); updated.
     rows : int64 ndarray (m,)
-        The rows to refine (those whose coarse statistic passed the screen).
+        The rows to refine (those whose coarse statistic passed the screen), in the
+        order to visit them (``row_order``).
     norm : float
         sigma sqrt(F).
     steps : float64 ndarray (S, 2)
@@ -262,7 +267,7 @@ def climb(blocks, dts, shift, c, v, z, rows, norm, steps, grid, rounds, screen, 
     sums, vsums = np.empty(9, f32), np.empty(9, f32)
     xs, ys, vxs, vys = np.empty(3, f32), np.empty(3, f32), np.empty(3, f32), np.empty(3, f32)
     offsets = np.array([grid[0, 0], grid[4, 0], grid[8, 0]])   # -1, 0, 1
-    for i in rows[np.argsort(c[rows, 1])]:         # in order of their row: rows cached
+    for i in rows:
         for s in range(len(steps)):
             dc, dv = steps[s, 0], steps[s, 1]
             moved = True
@@ -296,16 +301,22 @@ def climb(blocks, dts, shift, c, v, z, rows, norm, steps, grid, rounds, screen, 
 KERNELS = (track_sums, patch_sums, climb)
 
 
+def row_order(y) -> np.ndarray:
+    """The order (int64) that visits tracks by their row y, so that each frame's rows
+    stay cached from one track to the next (the kernels' ``order`` and ``rows``; numpy's
+    sort, so numba need not compile one)."""
+    return np.argsort(np.asarray(y), kind="stable").astype(np.int64)
+
+
 def warm_up() -> None:
-    """Compile or load the kernels for the types the verification passes (one and
-    two or three blocks: the pipeline passes a block per window)."""
+    """Compile or load the kernels for the types the verification passes (3 blocks:
+    ``irdetect.verify`` pads fewer)."""
     f32 = np.float32
-    block, a = np.zeros((1, 2, 2), f32), np.zeros((1, 1), f32)
-    for blocks in ((block,), (block, block), (block, block, block)):
-        dts, shift = np.zeros(len(blocks), f32), np.zeros((len(blocks), 2), f32)
-        track_sums(blocks, dts, shift, a, a, a, a, True, f32(np.inf), np.zeros((1, 1), f32))
-        track_sums(blocks, dts, shift, a, a, a, a, False, f32(np.inf), np.zeros((1, 1), f32))
-        climb(blocks, dts, shift, np.zeros((1, 2)), np.zeros((1, 2)), np.zeros(1),
-              np.zeros(1, np.int64), 1.0, np.zeros((1, 2)), np.zeros((9, 2)), 1, 0.0,
-              f32(np.inf))
-        patch_sums(blocks, dts, shift, a, a, a[0], a[0], f32(np.inf), np.zeros((1, 9), f32))
+    a = np.zeros((1, 1), f32)
+    blocks = (np.zeros((1, 2, 2), f32),) * 3
+    dts, shift = np.zeros(3, f32), np.zeros((3, 2), f32)
+    first = np.zeros(1, np.int64)
+    track_sums(blocks, dts, shift, a, a, a, a, True, f32(np.inf), first, np.zeros((1, 1), f32))
+    patch_sums(blocks, dts, shift, a, a, a[0], a[0], f32(np.inf), first, np.zeros((1, 9), f32))
+    climb(blocks, dts, shift, np.zeros((1, 2)), np.zeros((1, 2)), np.zeros(1),
+          np.zeros(1, np.int64), 1.0, np.zeros((1, 2)), np.zeros((9, 2)), 1, 0.0, f32(np.inf))
