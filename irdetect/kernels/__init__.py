@@ -21,7 +21,7 @@ log = logging.getLogger(__name__)
 #: the decorator of every kernel
 jit = functools.partial(numba.njit, cache=True, nogil=True)
 
-_warm = False
+_warm: set = set()
 
 
 def _cached(dispatcher) -> bool:
@@ -34,22 +34,25 @@ def _cached(dispatcher) -> bool:
         return False
 
 
-def warm_up() -> float:
-    """Compile (first run after an install) or load every kernel, once per process.
+def warm_up(*names: str) -> float:
+    """Compile (first run after an install) or load the kernels of the modules ``names``
+    (``"sampling"``, ``"peaks"``; all when none are given), once per process.
 
     Logs "compiling kernels, once" at INFO when a kernel is not in the cache. Returns the
-    seconds taken (0 when already done in this process).
+    seconds taken (0 when already done in this process). A run loads only the kernels its
+    stages use: the first costs about 0.5 s (numba's code generator starting), which the
+    fast profile, using none, does not pay.
     """
-    global _warm
-    if _warm:
-        return 0.0
-    from irdetect.kernels import peaks, sampling
+    import importlib
 
+    todo = [n for n in (names or ("sampling", "peaks")) if n not in _warm]
+    if not todo:
+        return 0.0
     t0 = time.perf_counter()
-    modules = (sampling, peaks)
+    modules = [importlib.import_module(f"irdetect.kernels.{n}") for n in todo]
     if not all(_cached(k) for m in modules for k in m.KERNELS):
         log.info("compiling kernels, once (later runs load them from numba's cache)")
     for m in modules:
         m.warm_up()
-    _warm = True
+    _warm.update(todo)
     return time.perf_counter() - t0

@@ -152,7 +152,11 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
     shape = tuple(frames.shape)
     if len(shape) != 3:
         raise ValueError(f"frames must have shape (T, H, W), got {shape}")
-    kernels.warm_up()
+    # the compiled kernels the stages use: the verification's and the per-frame path's
+    used = (["sampling"] if config.correlate.verify > 0 else []) + \
+        (["peaks"] if config.frame.enabled else [])
+    if used:
+        kernels.warm_up(*used)
     n_frames = shape[0]
     config = fit_config(config, n_frames)
     cc = config.combine
