@@ -63,9 +63,41 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
         writer's append); the returned points table is then empty.
     progress : bool
         Show a tqdm bar over frames.
+    suppression : dict, optional
+        Keywords of ``irdetect.suppress.suppress`` for the detector's regions (the
+        ``[suppress]`` table; ``irdetect.track.detector.SUPPRESS_DEFAULTS`` otherwise).
+    camera_sink : callable, optional
+        Called with the ``irdetect.tables.CAMERA`` rows (the camera's offset x, y px of
+        every frame) as they are measured (the detector's regions only).
     method : {"fcm-pmht", "gnn"}
         FCM association + adaptive PMHT (:class:`FCMPMHTTracker`) or the CV Kalman + global
         nearest neighbour baseline (:class:`GNNTracker`).
+    regions : {"detector", "tophat"}
+        Where the regions come from: the per-frame detector of ``irdetect process``
+        (``irdetect.track.detector``: suppression with the camera's motion, the PSF's
+        matched filter, CFAR peaks on the local noise, each peak's half-maximum region;
+        tracks in scene coordinates), or the white top-hat of
+        :func:`irdetect.track.regions.extract_regions` (the ``maritime`` and ``paper``
+        profiles; image coordinates, the camera taken to hold still).
+    false_rate : float
+        The detector's CFAR level: white-noise peaks per frame (``irdetect.peaks``).
+    psf : float
+        Sigma (px) of the detector's matched filter (``process``'s ``combine.dp_smooth``).
+    fraction : float
+        A detector region holds the pixels around its peak at or above this fraction of
+        its highest value (``irdetect.track.detector.peak_regions``).
+    false_tracks : float
+        Clutter tracks per frame the confirmation allows (``irdetect.track.confirm``):
+        a tentative track must move against the scene, pass the scans clutter test with
+        the local density and reach the score this sequence's clutter reaches this often;
+        0: the M-of-N rule alone (``confirm_hits`` in ``confirm_window``).
+    sigma : float
+        Position error of a region (px) in the confirmation's tests.
+    max_speed : float
+        Largest speed against the scene (px/frame) of the clutter test's hypotheses.
+    learn_frames : int
+        No track is confirmed before this many frames (the clutter sample of the score
+        test is too young).
     sea_sky : bool
         Find the sea-sky line in every frame and search only the band from ``band_above``
         pixels above it to ``band_below`` pixels below it (maritime scenes; off for sky or
@@ -81,7 +113,9 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
         robust sigmas of its own noise measured per 32-px tile, no grey gate, areas
         2-200 px. Sea scenes, whose waves and glints sit at the targets' scale, take the
         ``maritime`` profile (sea-sky band, unsmoothed, one level per frame, 5.5 sigmas,
-        5 px); the paper's absolute gates are the ``paper`` profile (data/profiles/).
+        5 px); the paper's absolute gates are the ``paper`` profile (data/profiles/). With
+        the detector's regions only the area and grey gates apply (grey: local SNR), and
+        ``tile`` sets the detector's noise tiles.
     grey_scale : float
         Grey difference counted as one unit of FCM distance, in robust sigmas of the
         first frame's suppressed residual (``irdetect.track.regions.residual_level``),
@@ -93,7 +127,7 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
         Tracker parameters, see :class:`irdetect.track.tracker.FCMPMHTTracker` (the GNN
         baseline ignores the FCM, adaptive-noise and merge ones).
     window : int
-        Frames read at a time.
+        Frames read at a time (the top-hat regions; the detector reads 12-frame windows).
 
     Returns
     -------
@@ -109,9 +143,15 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     --------
     >>> from irdetect.simulate.harbour import simulate_harbour
     >>> frames, truth = simulate_harbour(n_frames=60, rng=1)
-    >>> points, tracks = track(frames, sea_sky=True)
+    >>> points, tracks = track(frames, sea_sky=True, regions="tophat", false_tracks=0.0,
+    ...                        confirm_window=5)          # the maritime profile's regions
     >>> len(tracks) >= 3
     True
+    >>> from irdetect.simulate import simulate
+    >>> frames, truth = simulate("wan2008", snr=6, n_targets=1, n_frames=40, rng=1)
+    >>> points, tracks = track(frames)                     # the per-frame detector's regions
+    >>> len(tracks)
+    1
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
