@@ -121,7 +121,7 @@ class FrameConfig:
     false_rate: float = 1.0
     sigma: float = 1.0
     max_speed: float = 16.0
-    false_tracks: float = 0.01
+    false_tracks: float = 0.001
     confirm_m: int = 3
     confirm_n: int = 4
 

@@ -348,6 +348,39 @@ def plot_results(results, source=None, *, suppressed: bool = True, truth=None,
     return fig
 
 
+def plot_roc(curves: dict, *, title: str = ""):
+    """A figure of ROC curves: Pd against false detections per frame (log axis).
+
+    Parameters
+    ----------
+    curves : dict
+        ``{label: roc}``, each ``roc`` a dict of ``irdetect.metrics.detection.roc`` (its
+        ``pd``, ``false_per_frame`` and ``auc``).
+    title : str
+        The axes' title.
+    """
+    Figure, _ = require_matplotlib()
+    fig = Figure(figsize=(6.0, 4.5), dpi=100)
+    ax = fig.add_subplot()
+    for label, c in curves.items():
+        f = np.asarray(c["false_per_frame"], float)
+        pd = np.asarray(c["pd"], float)
+        order = np.argsort(f, kind="stable")
+        # rates of 0 drawn at the axis' floor so the curve starts where it does
+        ax.step(np.maximum(f[order], 1e-3), pd[order], where="post",
+                label=f"{label} (area {c['auc']:.2f})")
+    ax.axvline(0.1, color="0.6", lw=0.8, ls="--")
+    ax.set_xscale("log")
+    ax.set_xlim(1e-3, None)
+    ax.set_ylim(0, 1.02)
+    ax.set_xlabel("false detections per frame (0 drawn at 0.001)")
+    ax.set_ylabel("Pd (target-windows)")
+    ax.set_title(title or "ROC over the detections' local SNR")
+    ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    return fig
+
+
 def write_figure(path, fig, *, force: bool = False, inputs=()) -> Path:
     """Write a matplotlib figure atomically (``irdetect.io.atomic_output``: a temporary
     beside it, then a rename; mode 0666 less the umask); never over one of ``inputs``.

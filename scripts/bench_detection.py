@@ -39,7 +39,7 @@ from irdetect.config import ProcessConfig
 from irdetect.detect import DirectionalDetection
 from irdetect.fuse import fuse
 from irdetect.metrics.detection import score_detections
-from irdetect.pipeline import iter_results
+from irdetect.pipeline import detect_sequence
 from irdetect.simulate import load_scenario, simulate
 from irdetect.suppress import suppress
 
@@ -51,8 +51,8 @@ SNRS = (1.5, 2.0, 2.5, 3.0, 4.0, 6.0)
 # --- methods ----------------------------------------------------------------------------
 
 def full_pipeline(frames, cfg: ProcessConfig):
-    parts = list(iter_results(frames, cfg))
-    return np.concatenate([p["detections"] for p in parts]), 12, 12
+    """irdetect's fused detections (both paths, ``detect_sequence``)."""
+    return detect_sequence(frames, cfg)["detections"], 12, 12
 
 
 def single_frame_tophat(frames, cfg: ProcessConfig, k: float = 5.0):

@@ -70,11 +70,14 @@ def test_cli_process_then_evaluate(cli, tmp_path):
     code, out, _ = cli("evaluate", "res.h5", "--truth", "seq.h5", "--json")
     assert code == 0
     scores = json.loads(out)["detection"]
-    # the two targets cross in the last window (one fused point there); nothing false
-    assert scores["targets"] == 8 and scores["detected"] == 7 and scores["false"] == 0
+    # the two targets cross in the last window (one fused point of the combined-frame
+    # path there; the per-frame path follows both); nothing false
+    assert scores["targets"] == 8 and scores["detected"] >= 7 and scores["false"] == 0
     mem = score_detections(detect_sequence(frames)["detections"], truth, n_frames=48,
                            length=12, step=12, shape=(96, 128))
-    assert mem == pytest.approx(scores)
+    assert mem == pytest.approx({k: scores[k] for k in mem})
+    # the ROC over the local SNR: its last point holds every detection
+    assert scores["roc"]["pd"][-1] == scores["pd"] and 0 < scores["roc_auc"] <= 1
     code, out, _ = cli("evaluate", "res.h5")            # truth from the results' input
     assert code == 0 and "pd" in out and "false_per_mpx_window" in out
     # point annotations (x y per frame) are accepted as truth too

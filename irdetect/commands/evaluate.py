@@ -55,11 +55,18 @@ def add_arguments(p):
 # --- sections: (name, table it needs, function(results, truth, context) -> dict) -------
 
 def _detection_section(results, truth, ctx) -> dict:
-    from irdetect.metrics.detection import score_detections
+    from irdetect.metrics.detection import roc, score_detections
 
-    return score_detections(results["detections"], truth, n_frames=ctx["n_frames"],
-                            length=ctx["length"], step=ctx["step"], shape=ctx["shape"],
-                            gate=ctx["gate"])
+    det = results["detections"]
+    kw = dict(n_frames=ctx["n_frames"], length=ctx["length"], step=ctx["step"],
+              shape=ctx["shape"], gate=ctx["gate"])
+    out = score_detections(det, truth, **kw)
+    out["false_per_frame"] = out["false"] / ctx["n_frames"]
+    if "snr" in det.dtype.names:          # results of irdetect 0.x before the per-frame path
+        curve = roc(det, truth, **kw)
+        out["roc_auc"] = curve["auc"]
+        out["roc"] = {k: curve[k] for k in ("thresholds", "pd", "false_per_frame")}
+    return out
 
 
 def _mot_section(results, truth, ctx) -> dict:
@@ -168,6 +175,7 @@ def _load_truth(results, results_path, truth_path):
 #: line under the table
 LEGEND = {
     "pd": "pd = detected / target-windows",
+    "roc_auc": "roc_auc = area under pd vs false/frame (0-0.1) over snr thresholds / 0.1",
     "false": "false = detections near no target",
     "pixel_fa": "pixel_fa = false-alarm pixels / all pixels (3x3 px per false detection)",
     "pt_overall": "pt = targets with a track / targets",
@@ -190,18 +198,26 @@ def legend_line(scores: dict) -> str:
 
 
 def format_table(scores: dict) -> str:
-    """Plain-text table, one block per section, and the legend line under it."""
+    """Plain-text table, one block per section, and the legend line under it (a ROC
+    curve as one line per threshold)."""
     lines = []
     for title, values in scores.items():
         lines.append(f"{title}")
         for key, value in values.items():
-            if isinstance(value, float):
-                text = f"{value:.4g}" if abs(value) >= 1e-3 or value == 0 else f"{value:.3e}"
-            else:
-                text = str(value)
-            lines.append(f"  {key:<22} {text}")
+            if isinstance(value, dict):           # the ROC's columns
+                lines.append(f"  {key:<22} {'  '.join(f'{k:>15}' for k in value)}")
+                for row in zip(*value.values()):
+                    lines.append(f"  {'':<22} {'  '.join(f'{_number(v):>15}' for v in row)}")
+                continue
+            lines.append(f"  {key:<22} {_number(value)}")
     lines.append(legend_line(scores))
     return "\n".join(lines)
+
+
+def _number(value) -> str:
+    if isinstance(value, float):
+        return f"{value:.4g}" if abs(value) >= 1e-3 or value == 0 else f"{value:.3e}"
+    return str(value)
 
 
 def run(args) -> int:

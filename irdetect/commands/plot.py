@@ -35,6 +35,12 @@ def add_arguments(p):
     p.add_argument("--scale", type=float, help="figure pixels per source pixel (default: "
                    "enough for 480 px width, at most 4)")
     p.add_argument("--gamma", type=float, default=1.0, help="display gamma (default 1)")
+    p.add_argument("--roc", action="store_true",
+                   help="draw the ROC instead: Pd against false detections per frame over "
+                   "the detections' local SNR (the truth as for evaluate: the sequence's, "
+                   "or --truth FILE; --gate)")
+    p.add_argument("--gate", type=float, default=3.0,
+                   help="--roc: match distance in px, as for evaluate (3)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
 
 
@@ -67,6 +73,8 @@ def run(args) -> int:
     require_matplotlib()                             # the install hint before any work
     if not Path(args.results).exists():
         raise InputError("results file not found", args.results)
+    if args.roc:
+        return _roc(args)
     results = read_results(args.results)
     if scan_tracks_of(results, warn=False) is not None:    # irdetect initiate on scans
         from irdetect.plot_scans import plot_scan_results
@@ -93,4 +101,22 @@ def run(args) -> int:
     write_figure(args.output, fig, force=args.force, inputs=(args.results, seq))
     width, height = fig.canvas.get_width_height()
     log.info("wrote %s (%dx%d px)", args.output, width, height)
+    return 0
+
+
+def _roc(args) -> int:
+    """``plot --roc``: the ROC of evaluate's detection section."""
+    from irdetect.commands.evaluate import evaluate
+    from irdetect.plot import plot_roc, write_figure
+
+    truth = args.truth if isinstance(args.truth, str) else None
+    scores = evaluate(args.results, truth, gate=args.gate).get("detection", {})
+    if "roc" not in scores:
+        raise InputError("holds no detections with a local SNR (snr) to rank: not the "
+                         "results of irdetect process", args.results)
+    name = Path(args.results).name
+    fig = plot_roc({name: {**scores["roc"], "auc": scores["roc_auc"]}},
+                   title=f"{name}: ROC (gate {args.gate:g} px)")
+    write_figure(args.output, fig, force=args.force, inputs=(args.results,))
+    log.info("wrote %s (ROC, area %.3f)", args.output, scores["roc_auc"])
     return 0

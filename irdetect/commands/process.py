@@ -1,9 +1,12 @@
 """Detect dim point targets in a sequence and initiate their tracks.
 
 Suppresses clutter, forms combined frames, runs directional threshold detection, fuses
-target groups, confirms them by bidirectional correlation over 3 combined frames and
-initiates tracks by Hough transform + subtractive clustering. Writes one HDF5 results
-file (/detections, /candidates, /segments, /tracks; docs/format.md).
+target groups, confirms them by bidirectional correlation over 3 combined frames; beside
+that, finds each frame's CFAR peaks and initiates them like radar scans (the per-frame
+path, for bright or fast targets); fuses both paths' detections per window and initiates
+tracks by Hough transform + subtractive clustering. Writes one HDF5 results file
+(/detections with the path that found each, /tracks, /combined_detections,
+/frame_detections, /frame_tracks, /candidates, /segments; docs/format.md).
 
 Several inputs (files, folders of sequences, globs) with --out-dir DIR: one results file
 per input, run on --jobs local processes or a Dask cluster (--scheduler), resumable, with

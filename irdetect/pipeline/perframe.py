@@ -8,17 +8,19 @@ path's windows, so both paths report per window) is initiated by M-of-N logic
 position error ``sigma`` (px) and the speed range up to ``max_speed`` px/frame against the
 scene. A window's track is kept when
 
-1. it moves against the scene by more than its position error over the window
-   (displacement >= 3 sqrt(2) sigma: structure that stays put in the scene, which the
-   suppressor's background leaves as residue, is the combined-frame path's to judge);
+1. it moves by more than its position error over the window (displacement >= 3 sqrt(2)
+   sigma), both against the scene and in the image: structure that stays put in the
+   scene (which the suppressor's background leaves as residue) or in the image (the
+   sensor's fixed pattern, a border artefact under a moving camera) is not this path's,
+   and a target the camera holds still is the combined-frame path's to judge;
 2. clutter of the density measured around it would make at most ``false_tracks`` x M
    chains as good anywhere in the frame (the scans clutter test of
    ``irdetect.initiate.clutter`` with the density of peaks within ``max_speed`` px of the
    track: E = H J min_j B(n_j; M, p(g_j)));
 3. its score, the median local SNR of its hits, reaches the level clutter of this sequence
    reaches ``false_tracks`` times per frame (``irdetect.operating.tail_threshold``, fitted
-   to the scores of the tracks that fail 1: they are clutter by 1's definition, and a
-   moving target cannot be among them).
+   to the scores of the tracks that stay put in the scene: they are clutter by 1's
+   definition, and a moving target cannot be among them).
 
 Coordinates: x = column, y = row, px; time in frames.
 """
@@ -42,7 +44,7 @@ GATE = 3.0
 def frame_tracks(peaks: np.ndarray, camera: np.ndarray, starts, length: int, *,
                  shape: tuple[int, int], n_frames: int, level: float, false_rate: float = 1.0,
                  sigma: float = 1.0,
-                 max_speed: float = 16.0, false_tracks: float = 0.01, confirm_m: int = 3,
+                 max_speed: float = 16.0, false_tracks: float = 0.001, confirm_m: int = 3,
                  confirm_n: int = 4) -> np.ndarray:
     """The per-frame path's tracks, one set per window of frames.
 
@@ -136,10 +138,14 @@ def _window_tracks(peaks, camera, start, length, k, shape, sigma, max_speed, fal
     ey = sy[idx] - (rows["y0"][:, None] + rows["vy"][:, None] * dt)
     e = np.where(pad, np.hypot(ex, ey) / sigma, np.inf)
     span = rows["t_end"] - rows["t_start"]
-    out["moving"] = np.hypot(rows["vx"], rows["vy"]) * span >= GATE * math.sqrt(2.0) * sigma
+    # moving against the scene and in the image: structure fixed in either (the scene's,
+    # or the sensor's pattern under a moving camera) is not this path's
+    least = GATE * math.sqrt(2.0) * sigma
+    out["moving"] = np.hypot(out["svx"], out["svy"]) * span >= least
+    in_image = np.hypot(out["vx"], out["vy"]) * span >= least
     out["expectation"] = _expectation(e, rows, sx, sy, idx, pad, shape, length, sigma,
                                       max_speed, floor)
-    out["kept"] = out["moving"] & (out["expectation"] <= false_tracks * length)
+    out["kept"] = out["moving"] & in_image & (out["expectation"] <= false_tracks * length)
     return out
 
 
