@@ -40,7 +40,8 @@ import cv2
 import numpy as np
 
 from irdetect.peaks import frame_level, frame_peaks
-from irdetect.suppress import future_frames, past_frames, suppress
+from irdetect.suppress import (camera_moves, future_frames, past_frames,
+                               prefer_registered, suppress)
 from irdetect.track.regions import REGION
 from irdetect.verify import matched_frame, standardise
 
@@ -89,16 +90,41 @@ def detector_blocks(frames, *, length: int = 12, psf: float = 0.6, tile: int = 3
     ahead = [future_frames(start=s, stop=min(n, s + length), **sp) for s in starts]
     reader = Reader(frames, past_frames(**sp), length, max(ahead),
                     camera=sp["method"] in ("auto", "registered"))
+    scene = np.zeros((n, 2))            # the offsets the tracks' scene coordinates take
     for s, extra in zip(starts, ahead):
         stop = min(n, s + length)
         block, previous = reader.read(s, min(n, stop + extra))
         camera = reader.offsets[s - len(previous):s + len(block)]
         block, following = block[:stop - s], block[stop - s:]
-        residual = suppress(block, previous=previous if len(previous) else None,
-                            following=following if len(following) else None,
-                            camera=camera, **sp)
+        kw = dict(previous=previous if len(previous) else None,
+                  following=following if len(following) else None, camera=camera)
+        follow = True
+        if sp["method"] == "auto":
+            # auto's choice, made here so the scene coordinates follow it: when the
+            # camera's offsets move, the registered background only if it leaves clearly
+            # less than the image-fixed one (irdetect.suppress.prefer_registered)
+            keep = min(len(previous), past_frames(**sp))
+            residual = suppress(block, **kw, **{**sp, "method": "temporal"})
+            if camera_moves(camera[len(previous) - keep:len(previous) + stop - s]):
+                other = suppress(block, **kw, **{**sp, "method": "registered"})
+                follow = prefer_registered(other, residual)
+                if follow:
+                    residual = other
+        else:
+            residual = suppress(block, **kw, **sp)
+        # a window whose offsets moved while the image-fixed background was no worse
+        # than the registered one holds the scene where the last window left it: those
+        # offsets followed the targets themselves or clouds over a still camera (wide
+        # bright blobs dragged them 0.4 px/frame), and would move and, where the
+        # keyframe changes, jump the tracks' coordinates
+        before = scene[s - 1] if s else np.zeros(2)
+        raw = reader.offsets[max(s - 1, 0):stop]
+        if follow:
+            scene[s:stop] = before + (raw[-(stop - s):] - (raw[0] if s else 0.0))
+        else:
+            scene[s:stop] = before
         standardise([matched_frame(r, psf, out=r) for r in residual], tile)
-        yield s, residual, reader.offsets[s:stop].copy()
+        yield s, residual, scene[s:stop].copy()
 
 
 def peak_regions(matched: np.ndarray, k: float, *, fraction: float = 0.5,
