@@ -88,43 +88,67 @@ def detector_blocks(frames, *, length: int = 12, psf: float = 0.6, tile: int = 3
     length = max(1, min(int(length), n))
     starts = range(0, n, length)
     ahead = [future_frames(start=s, stop=min(n, s + length), **sp) for s in starts]
-    reader = Reader(frames, past_frames(**sp), length, max(ahead),
+    # the first window is suppressed backwards in time from the frames after it (its
+    # frames have no past of ``history`` frames)
+    back = past_frames(**sp) if sp["method"] in ("temporal", "registered", "auto") else 0
+    reader = Reader(frames, past_frames(**sp), length, max(max(ahead), back),
                     camera=sp["method"] in ("auto", "registered"))
     scene = np.zeros((n, 2))            # the offsets the tracks' scene coordinates take
     for s, extra in zip(starts, ahead):
         stop = min(n, s + length)
-        block, previous = reader.read(s, min(n, stop + extra))
-        camera = reader.offsets[s - len(previous):s + len(block)]
-        block, following = block[:stop - s], block[stop - s:]
-        kw = dict(previous=previous if len(previous) else None,
-                  following=following if len(following) else None, camera=camera)
-        follow = True
-        if sp["method"] == "auto":
-            # auto's choice, made here so the scene coordinates follow it: when the
-            # camera's offsets move, the registered background only if it leaves clearly
-            # less than the image-fixed one (irdetect.suppress.prefer_registered)
-            keep = min(len(previous), past_frames(**sp))
-            residual = suppress(block, **kw, **{**sp, "method": "temporal"})
-            if camera_moves(camera[len(previous) - keep:len(previous) + stop - s]):
-                other = suppress(block, **kw, **{**sp, "method": "registered"})
-                follow = prefer_registered(other, residual)
-                if follow:
-                    residual = other
+        if s == 0 and back and stop < n:
+            # a frame early in a sequence has a short past: its image-fixed background
+            # is the mean of the few frames before it, which hold a slow target a pixel
+            # or two away (frame 1's background is frame 0: a blob of 2.6 px moving
+            # 1 px/frame all but cancels). The window's frames take the ``back`` frames
+            # after it as the start of their past: frame t's background holds frames
+            # 0 .. t-1 and the latest of those, so the target's own trail in it goes
+            # from far ahead (frame 0) to just behind (the last frame, as in the next
+            # window: its centroid does not jump there)
+            raw, _ = reader.read(0, min(n, stop + back))
+            after = np.arange(stop, len(raw))
+            order = np.concatenate([after, np.arange(stop)])
+            residual, follow = _suppress_window(raw[:stop], raw[after], raw[:0],
+                                                reader.offsets[order], sp)
         else:
-            residual = suppress(block, **kw, **sp)
+            block, previous = reader.read(s, min(n, stop + extra))
+            camera = reader.offsets[s - len(previous):s + len(block)]
+            residual, follow = _suppress_window(block[:stop - s], previous,
+                                                block[stop - s:], camera, sp)
         # a window whose offsets moved while the image-fixed background was no worse
         # than the registered one holds the scene where the last window left it: those
         # offsets followed the targets themselves or clouds over a still camera (wide
         # bright blobs dragged them 0.4 px/frame), and would move and, where the
         # keyframe changes, jump the tracks' coordinates
         before = scene[s - 1] if s else np.zeros(2)
-        raw = reader.offsets[max(s - 1, 0):stop]
+        raw_off = reader.offsets[max(s - 1, 0):stop]
         if follow:
-            scene[s:stop] = before + (raw[-(stop - s):] - (raw[0] if s else 0.0))
+            scene[s:stop] = before + (raw_off[-(stop - s):] - (raw_off[0] if s else 0.0))
         else:
             scene[s:stop] = before
         standardise([matched_frame(r, psf, out=r) for r in residual], tile)
         yield s, residual, scene[s:stop].copy()
+
+
+def _suppress_window(block, previous, following, camera, sp) -> tuple[np.ndarray, bool]:
+    """(residual (n, H, W) float32, follow): one window suppressed with the settings
+    ``sp``, and whether the scene coordinates follow the camera's offsets over it
+    (False: ``auto`` found them moving but took the image-fixed background,
+    ``irdetect.suppress.prefer_registered``). ``camera``: the offsets (x, y px) of
+    previous, block and following."""
+    kw = dict(previous=previous if len(previous) else None,
+              following=following if len(following) else None, camera=camera)
+    if sp["method"] != "auto":
+        return suppress(block, **kw, **sp), True
+    # auto's choice, made here so the scene coordinates follow it
+    keep = min(len(previous), past_frames(**sp))
+    residual = suppress(block, **kw, **{**sp, "method": "temporal"})
+    if camera_moves(camera[len(previous) - keep:len(previous) + len(block)]):
+        other = suppress(block, **kw, **{**sp, "method": "registered"})
+        if prefer_registered(other, residual):
+            return other, True
+        return residual, False
+    return residual, True
 
 
 def peak_regions(matched: np.ndarray, k: float, *, fraction: float = 0.5,

@@ -549,7 +549,9 @@ class FCMPMHTTracker(_TrackerBase):
             if len(rows):
                 assign[ti] = (rows, u[ti, rows])
         blocked |= shared_regions | (best < n_t)
-        blocked |= (ok & confirmed[:, None]).any(axis=0)
+        # a region in a confirmed track's gate, or holding its prediction in its box
+        # (its gate may miss the region when the region's centroid jumps), starts no track
+        blocked |= ((ok | inside) & confirmed[:, None]).any(axis=0)
         # a tentative track sitting on a confirmed track's region is absorbed
         taken = np.zeros(n_r, bool)
         for ti in range(n_t):
