@@ -172,7 +172,7 @@ class TrackConfig:
     method: str = "fcm-pmht"
     regions: str = "detector"
     false_rate: float = 1.0
-    psf: float = 0.6
+    psf: float = 1.0
     fraction: float = 0.5
     false_tracks: float = 0.001
     sigma: float = 1.0

@@ -238,8 +238,9 @@ def test_wide_psf_in_clouds_one_track_per_target(rng):
     # issue 17, seed 18: PSF 2.9 px at SNR 4.7 broke into 2-12 px fragments at 4 sigmas, a
     # fragment 3 px off started a second track on the same target (first round: 4 tracks
     # of 3 targets and 23 false points / 2 id switches on these scenes). Issue 17's top-hat
-    # regions: the per-frame detector's 0.6-px matched filter splits a PSF this wide into
-    # several peaks (5 tracks of 3 targets here; docs/tracking.md, Limits)
+    # regions: the per-frame detector's (the defaults) still cut one target's track on
+    # rng 2 (5 tracks of 3 targets, 2 id switches; 3 tracks on rng 6; docs/tracking.md,
+    # Limits)
     frames, truth = _blob_scene(rng, dtype="float32", background=1400.0, noise_sigma=36.0,
                                 psf_sigma=2.9, snr=4.7, cloud_amplitude=216.0,
                                 cloud_scale=24.0, n_targets=3, speed=[1.5, 2.0])

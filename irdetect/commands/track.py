@@ -8,8 +8,9 @@ are associated to the tracks by fuzzy c-means memberships and followed by a
 constant-velocity filter with adaptive process noise (Cheng et al.; docs/tracking.md), or
 by the CV Kalman + GNN baseline (--method gnn).
 Writes /track_points (one row per track per frame, image coordinates), /tracks (one row
-per track) and, with the detector's regions, /camera (the camera's offset of every frame;
-tracks are followed in scene coordinates).
+per track) and, with the detector's regions, /camera (the camera's offset of every frame
+that the tracks' scene coordinates took: held where the image-fixed background was taken
+although the offsets moved; tracks are followed in scene coordinates).
 """
 
 from __future__ import annotations

@@ -8,7 +8,12 @@ frame is smoothed by the PSF's Gaussian and divided by its local robust noise pe
 tile (``irdetect.verify.matched_frame``, ``irdetect.verify.standardise``: a value is a
 local SNR in matched-filter sigmas), and its CFAR peaks are the local maxima at or above
 the level a stated white-noise rate per frame sets (``irdetect.peaks.frame_level``,
-``irdetect.peaks.frame_peaks``). This is what ``irdetect.pipeline.combined.front`` does.
+``irdetect.peaks.frame_peaks``). This is what ``irdetect.pipeline.combined.front`` does,
+with two departures (``detector_blocks``): the offsets the tracks' scene coordinates take
+stay put over a window where ``auto`` found the camera's offsets moving but took the
+image-fixed background (``irdetect.suppress.prefer_registered``: such offsets followed the
+targets or clouds, not the camera), and the first window's frames take the frames after it
+as the start of their past (a short past holds a slow target a pixel or two away).
 
 Cheng et al.'s association also needs region features (grey g, area s, shape), which a peak
 alone lacks. Each peak's region is measured on the same standardised frame S
@@ -50,7 +55,7 @@ SUPPRESS_DEFAULTS = dict(method="auto", size=9, guard=1, history=12, gap=8, tole
                          fixed_pattern=True, samples=3, lead_in="future")
 
 
-def detector_blocks(frames, *, length: int = 12, psf: float = 0.6, tile: int = 32,
+def detector_blocks(frames, *, length: int = 12, psf: float = 1.0, tile: int = 32,
                     suppression: dict | None = None) -> Iterator[tuple]:
     """The matched, standardised residual of a sequence, one window at a time.
 
@@ -62,7 +67,8 @@ def detector_blocks(frames, *, length: int = 12, psf: float = 0.6, tile: int = 3
         Frames per window (the combined-frame path's 12): the noise scale is measured per
         window, the suppressor streams window by window.
     psf : float
-        Sigma (px) of the PSF's Gaussian, the matched filter (``combine.dp_smooth``).
+        Sigma (px) of the PSF's Gaussian, the matched filter (the tracker's 1 px;
+        ``process``'s ``combine.dp_smooth`` is 0.6 px).
     tile : int
         Side (px) of the tiles of the local noise scale (``irdetect.verify.standardise``).
     suppression : dict, optional
@@ -76,8 +82,10 @@ def detector_blocks(frames, *, length: int = 12, psf: float = 0.6, tile: int = 3
     matched : ndarray of float32 of shape (n, H, W)
         Its matched, standardised frames (local SNR).
     offsets : ndarray of shape (n, 2)
-        The camera's offsets (x, y px) of its frames (zeros unless the suppressor is
-        ``auto`` or ``registered``).
+        The offsets (x, y px) of its frames that the scene coordinates take (image minus
+        offset): the camera's, except that a window on which ``auto`` took the image-fixed
+        background although the offsets moved holds the last window's last offset (zeros
+        unless the suppressor is ``auto`` or ``registered``).
     """
     from irdetect.pipeline.reader import Reader     # the process command's window reader
 

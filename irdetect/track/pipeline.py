@@ -35,7 +35,7 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
           suppression: dict | None = None,
           camera_sink: Callable[[np.ndarray], None] | None = None, *,
           method: str = "fcm-pmht", regions: str = "detector", false_rate: float = 1.0,
-          psf: float = 0.6, fraction: float = 0.5, false_tracks: float = 0.001,
+          psf: float = 1.0, fraction: float = 0.5, false_tracks: float = 0.001,
           sigma: float = 1.0, max_speed: float = 16.0, learn_frames: int = 12,
           sea_sky: bool = False, band_above: float = 5.0,
           band_below: float = 40.0, suppress_size: int = 15, k: float = 5.0,
@@ -82,7 +82,9 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     false_rate : float
         The detector's CFAR level: white-noise peaks per frame (``irdetect.peaks``).
     psf : float
-        Sigma (px) of the detector's matched filter (``process``'s ``combine.dp_smooth``).
+        Sigma (px) of the detector's matched filter (1 px, issue 17's ``smooth``;
+        ``process``'s ``combine.dp_smooth`` is 0.6 px, which put 4 of the 17 real folders
+        at the goal against 6, leave-one-out in docs/results/tracking.md).
     fraction : float
         A detector region holds the pixels around its peak at or above this fraction of
         its highest value (``irdetect.track.detector.peak_regions``).
