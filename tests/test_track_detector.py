@@ -126,3 +126,22 @@ def test_slow_wide_target_is_found_from_the_first_frames():
     early = truth[truth["frame"] < 12]
     r = clear_mot(early, points[points["frame"] < 12], gate=5.8)
     assert len(tracks) == 1 and r["matches"] == len(early) and r["fp"] == 0
+
+
+def test_target_jumping_out_of_its_gate_keeps_its_id():
+    # daub-data20: the target jumps 5 px in one frame (a camera jump its offsets miss); the
+    # confirmed track coasts, a new one is confirmed where the target went and takes the
+    # old one's id (it had ended with an id switch: IDF1 0.68)
+    g = np.random.default_rng(4)
+    n, h, w = 70, 96, 128
+    frames = g.normal(100, 3, (n, h, w)).astype(np.float32)
+    truth = np.zeros(n, [("frame", "<i8"), ("target", "<i8"), ("x", "<f8"), ("y", "<f8"),
+                         ("amplitude", "<f8")])
+    for t in range(n):
+        x, y = 20 + 0.8 * t + (5.0 if t >= 35 else 0.0), 40 + 0.3 * t
+        frames[t] += _blob((h, w), x, y, 1.0, 1.0, 30.0).astype(np.float32)
+        truth[t] = (t, 0, x, y, 30.0)
+    points, tracks = track(frames)
+    r = clear_mot(truth, points, gate=3.0)
+    assert len(tracks) == 1 and r["id_switches"] == 0 and r["mota"] > 0.8
+    assert len(np.unique(points["track_id"])) == 1

@@ -21,6 +21,8 @@ interval). Output rows are :data:`irdetect.tables.TRACK_POINT`; summaries
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -260,6 +262,8 @@ class _TrackerBase:
             if not t.confirmed:
                 if t.hits >= self.confirm_hits and (test is None or test.passes(t, level)):
                     t.confirmed = True
+                    if test is not None:
+                        self._succeed(t, frame)
                     t.meas = []
                     if t.misses == 0:
                         self._release(t, out)
@@ -274,7 +278,40 @@ class _TrackerBase:
                 self._end(t)
                 continue
             keep.append(t)
-        self.tracks = keep
+        self.tracks = [t for t in keep if not t.dead]   # taken over by a successor
+
+    def _succeed(self, t: Track, frame: int) -> None:
+        """A newly confirmed track born while a confirmed track coasts near its first hit
+        takes that track's id and history (the clutter-tested confirmation only): the
+        target jumped out of the old track's gate (a camera jump the offsets missed, a
+        centroid that moved) and the old track would end with an id switch.
+
+        Near: the old track, extrapolated back from ``frame`` at its velocity to the new
+        track's first hit, is within the confirmation's ``radius`` px of it, and it was
+        last hit before the new track's birth."""
+        if not t.meas:
+            return
+        f0, x0, y0 = t.meas[0][:3]
+        best, dist = None, self.confirm.radius
+        for o in self.tracks + self._ended[-self.max_tracks:]:
+            if (o is t or not o.confirmed or o.dead or o.misses == 0 or o.last_hit >= t.born
+                    or f0 - o.last_hit > self.max_misses + 1):
+                continue
+            # its state is predicted to the frame of its last miss
+            back = o.last_hit + o.misses - f0
+            d = math.hypot(o.x[0] - o.x[1] * back - x0, o.x[2] - o.x[3] * back - y0)
+            if d <= dist:
+                best, dist = o, d
+        if best is None:
+            return
+        t.track_id = best.track_id
+        t.pending = [(p[0], best.track_id) + tuple(p[2:]) for p in t.pending]
+        t.sums = best.sums.copy()
+        t.first_frame = best.first_frame
+        if best in self._ended:
+            self._ended.remove(best)
+        best.confirmed = False          # ends with no summary of its own
+        best.dead = True
 
     def _end(self, t: Track) -> None:
         t.pending = []
@@ -412,7 +449,11 @@ class FCMPMHTTracker(_TrackerBase):
     confirm : irdetect.track.confirm.ClutterTest, optional
         A tentative track with ``confirm_hits`` hits is confirmed only when it also passes
         this test (clutter of the measured density would rarely make a track as good;
-        ``irdetect.track.confirm``); None: the M-of-N rule alone.
+        ``irdetect.track.confirm``); None: the M-of-N rule alone. With the test, a track
+        confirmed while a confirmed track coasts (or ended coasting up to ``max_misses``
+        frames before) within the test's ``radius`` px of its first hit, last hit before
+        its birth, takes that track's id and history (a target that jumped out of its
+        track's gate).
 
     Notes
     -----
