@@ -170,6 +170,14 @@ class TrackConfig:
     """Frame-by-frame FCM + adaptive PMHT tracker (``irdetect.track.track``)."""
 
     method: str = "fcm-pmht"
+    regions: str = "detector"
+    false_rate: float = 1.0
+    psf: float = 1.0
+    fraction: float = 0.5
+    false_tracks: float = 0.001
+    sigma: float = 1.0
+    max_speed: float = 16.0
+    learn_frames: int = 12
     sea_sky: bool = False
     band_above: float = 5.0
     band_below: float = 40.0
@@ -178,7 +186,7 @@ class TrackConfig:
     smooth: float = 1.0
     tile: int = 32
     min_contrast: float = 0.0
-    min_area: float = 2.0
+    min_area: float = 1.0
     max_area: float = 200.0
     grey_gate: bool = False
     min_grey: float = 100.0
@@ -200,11 +208,11 @@ class TrackConfig:
     direction_after: int = 3
     min_speed: float = 0.2
     confirm_hits: int = 3
-    confirm_window: int = 5
+    confirm_window: int = 30
     max_misses: int = 12
     max_merged: int = 150
     merge_margin: float = 1.0
-    max_tracks: int = 50
+    max_tracks: int = 200
     init_speed: float = 2.0
     feature_memory: float = 0.9
     window: int = 64

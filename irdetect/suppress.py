@@ -218,8 +218,7 @@ def suppress(frames, previous=None, following=None, camera=None, *, method: str 
             # may be clouds drifting over a still ground): registered only when it leaves
             # clearly fewer bright residues than the image-fixed background
             out, other = registered(), temporal()
-            (s_reg, b_reg), (s_tem, b_tem) = residue(out), residue(other)
-            if not (s_reg < WIDER * s_tem or (b_tem >= BRIGHT_MIN and b_reg < BRIGHTER * b_tem)):
+            if not prefer_registered(out, other):
                 out = other
     elif method == "none":
         out = stack.copy()
@@ -255,6 +254,16 @@ def residue(residual, k: float = 4.0) -> tuple[float, float]:
     med, sig = median_mad_sigma(v)
     sig = max(float(sig), 1e-12)
     return sig, float(np.count_nonzero(v - med > k * sig) / max(v.size, 1))
+
+
+def prefer_registered(registered, temporal) -> bool:
+    """``auto``'s choice when the camera's offsets move: whether the registered window
+    ``registered`` (T, H, W) leaves clearly less than the image-fixed one ``temporal``
+    (T, H, W): a robust sigma under ``WIDER`` times its, or (when the image-fixed one
+    leaves at least ``BRIGHT_MIN``) a share of bright residue under ``BRIGHTER`` times
+    its (``residue``)."""
+    (s_reg, b_reg), (s_tem, b_tem) = residue(registered), residue(temporal)
+    return bool(s_reg < WIDER * s_tem or (b_tem >= BRIGHT_MIN and b_reg < BRIGHTER * b_tem))
 
 
 def past_frames(method: str, *, history: int = 12, gap: int = 8, **_) -> int:

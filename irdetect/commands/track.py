@@ -1,11 +1,16 @@
 """Track small (possibly extended) targets frame by frame through a whole sequence.
 
-Candidate regions of every frame (top-hat, a 1-px matched filter, a CFAR threshold on the
-local noise, connected components, grey and area gates; optionally only near the sea-sky
-line) are associated to the tracks by fuzzy c-means memberships and followed by a
+Candidate regions of every frame (by default the per-frame detector of process: the
+suppressed residual with the camera's motion, the PSF's matched filter, CFAR peaks on the
+local noise and each peak's half-maximum region; the maritime and paper profiles: a
+top-hat, a CFAR threshold, connected components, optionally only near the sea-sky line)
+are associated to the tracks by fuzzy c-means memberships and followed by a
 constant-velocity filter with adaptive process noise (Cheng et al.; docs/tracking.md), or
 by the CV Kalman + GNN baseline (--method gnn).
-Writes /track_points (one row per track per frame) and /tracks (one row per track).
+Writes /track_points (one row per track per frame, image coordinates), /tracks (one row
+per track) and, with the detector's regions, /camera (the camera's offset of every frame
+that the tracks' scene coordinates took: held where the image-fixed background was taken
+although the offsets moved; tracks are followed in scene coordinates).
 """
 
 from __future__ import annotations
@@ -31,8 +36,9 @@ def add_arguments(p):
                    help="results file (default: INPUT_NAME.track.h5 in the current folder)")
     p.add_argument("--config", help="TOML file; its [track] table sets the tracker (docs/tracking.md)")
     p.add_argument("--profile", default="default", metavar="NAME",
-                   help="default (a 1-px matched filter and 5 sigmas of the local measured "
-                   "noise, any sensor), maritime (sea scenes: the sea-sky band, unsmoothed, 5.5 "
+                   help="default (the per-frame detector of process: moving targets against "
+                   "the scene, confirmed only when clutter of the measured density would "
+                   "rarely make a track as good; any sensor), maritime (sea scenes: the sea-sky band, unsmoothed, 5.5 "
                    "sigmas and 5 px against waves and glints) or paper (the paper's absolute "
                    "grey and area gates of its harbour scene)")
     p.add_argument("--method", choices=["fcm-pmht", "gnn"],
@@ -56,7 +62,8 @@ def run(args) -> int:
     check_output_path(output, args.force, inputs=(args.input,))
     params = {k: getattr(config.track, k) for k in config.track.__dataclass_fields__}
     with refused_settings(args.config):     # the tracker's own checks, on blank frames
-        track(np.zeros((3, 32, 32), np.float32), lambda rows: None, False, **params)
+        track(np.zeros((3, 32, 32), np.float32), lambda rows: None, False,
+              dataclasses.asdict(config.suppress), **params)
     with open_sequence(args.input, dataset=args.dataset) as source, \
             ResultsWriter(output, force=args.force, inputs=(args.input,), attrs={
                 "config": to_json(config), "input": path.name,
@@ -65,7 +72,8 @@ def run(args) -> int:
                 "frame_rate": source.frame_rate or float("nan")}) as out:
         out.append("track_points", tables.empty(tables.TRACK_POINT))
         points, summary = track(source, lambda rows: out.append("track_points", rows),
-                                args.progress, **params)
+                                args.progress, dataclasses.asdict(config.suppress),
+                                lambda rows: out.append("camera", rows), **params)
         out.write("tracks", summary)
     log.info("wrote %s: %d frames, %d tracks", output, len(source), len(summary))
     return 0

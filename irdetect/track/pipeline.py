@@ -10,6 +10,8 @@ from tqdm import tqdm
 
 from irdetect import tables
 from irdetect.io.sources import FrameSource, check_values
+from irdetect.track.confirm import ClutterTest
+from irdetect.track.detector import detector_blocks, detector_level, peak_regions
 from irdetect.track.regions import extract_regions, residual_level
 from irdetect.track.seasky import find_sea_sky_line, sea_sky_band
 from irdetect.track.tracker import FCMPMHTTracker, GNNTracker
@@ -17,13 +19,28 @@ from irdetect.track.tracker import FCMPMHTTracker, GNNTracker
 log = logging.getLogger(__name__)
 
 METHODS = ("fcm-pmht", "gnn")
+REGION_SOURCES = ("detector", "tophat")
+#: frames per window of the per-frame detector (its noise scale is measured per window:
+#: the combined-frame path's 12, as ``irdetect process`` does)
+DETECTOR_WINDOW = 12
+#: the detector's regions: a grey difference counts one unit of FCM distance per this
+#: fraction of the larger grey (a local SNR varies in proportion to itself)
+GREY_RELATIVE = 0.5
+#: px: the regions within this radius of a tentative track's predictions are its local
+#: clutter (the confirmation test; the per-frame path's ``max_speed``)
+CLUTTER_RADIUS = 16.0
 
 
-def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bool = False, *,
-          method: str = "fcm-pmht", sea_sky: bool = False, band_above: float = 5.0,
+def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bool = False,
+          suppression: dict | None = None,
+          camera_sink: Callable[[np.ndarray], None] | None = None, *,
+          method: str = "fcm-pmht", regions: str = "detector", false_rate: float = 1.0,
+          psf: float = 1.0, fraction: float = 0.5, false_tracks: float = 0.001,
+          sigma: float = 1.0, max_speed: float = 16.0, learn_frames: int = 12,
+          sea_sky: bool = False, band_above: float = 5.0,
           band_below: float = 40.0, suppress_size: int = 15, k: float = 5.0,
           smooth: float = 1.0, tile: int = 32, min_contrast: float = 0.0,
-          min_area: float = 2.0, max_area: float = 200.0,
+          min_area: float = 1.0, max_area: float = 200.0,
           grey_gate: bool = False, min_grey: float = 100.0, max_grey: float = 180.0,
           max_regions: int = 200,
           frame_interval: float = 1.0, q0: float = 1e-3, r: float = 0.5,
@@ -31,8 +48,8 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
           w_position: float = 1.0, w_grey: float = 1.0, w_area: float = 1.0,
           w_direction: float = 1.0, grey_scale: float = 4.5, area_scale: float = 0.5,
           direction_after: int = 3, min_speed: float = 0.2, confirm_hits: int = 3,
-          confirm_window: int = 5, max_misses: int = 12, max_merged: int = 150,
-          merge_margin: float = 1.0, max_tracks: int = 50, init_speed: float = 2.0,
+          confirm_window: int = 30, max_misses: int = 12, max_merged: int = 150,
+          merge_margin: float = 1.0, max_tracks: int = 200, init_speed: float = 2.0,
           feature_memory: float = 0.9, window: int = 64) -> tuple[np.ndarray, np.ndarray]:
     """Track targets frame by frame through a sequence (Cheng et al.).
 
@@ -46,9 +63,43 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
         writer's append); the returned points table is then empty.
     progress : bool
         Show a tqdm bar over frames.
+    suppression : dict, optional
+        Keywords of ``irdetect.suppress.suppress`` for the detector's regions (the
+        ``[suppress]`` table; ``irdetect.track.detector.SUPPRESS_DEFAULTS`` otherwise).
+    camera_sink : callable, optional
+        Called with the ``irdetect.tables.CAMERA`` rows (the camera's offset x, y px of
+        every frame) as they are measured (the detector's regions only).
     method : {"fcm-pmht", "gnn"}
         FCM association + adaptive PMHT (:class:`FCMPMHTTracker`) or the CV Kalman + global
         nearest neighbour baseline (:class:`GNNTracker`).
+    regions : {"detector", "tophat"}
+        Where the regions come from: the per-frame detector of ``irdetect process``
+        (``irdetect.track.detector``: suppression with the camera's motion, the PSF's
+        matched filter, CFAR peaks on the local noise, each peak's half-maximum region;
+        tracks in scene coordinates), or the white top-hat of
+        :func:`irdetect.track.regions.extract_regions` (the ``maritime`` and ``paper``
+        profiles; image coordinates, the camera taken to hold still).
+    false_rate : float
+        The detector's CFAR level: white-noise peaks per frame (``irdetect.peaks``).
+    psf : float
+        Sigma (px) of the detector's matched filter (1 px, issue 17's ``smooth``;
+        ``process``'s ``combine.dp_smooth`` is 0.6 px, which puts 5 of the 17 real folders
+        at the goal against 8, leave-one-out in docs/results/tracking.md).
+    fraction : float
+        A detector region holds the pixels around its peak at or above this fraction of
+        its highest value (``irdetect.track.detector.peak_regions``).
+    false_tracks : float
+        Clutter tracks per frame the confirmation allows (``irdetect.track.confirm``):
+        a tentative track must move against the scene, pass the scans clutter test with
+        the local density and reach the score this sequence's clutter reaches this often;
+        0: the M-of-N rule alone (``confirm_hits`` in ``confirm_window``).
+    sigma : float
+        Position error of a region (px) in the confirmation's tests.
+    max_speed : float
+        Largest speed against the scene (px/frame) of the clutter test's hypotheses.
+    learn_frames : int
+        No track is confirmed before this many frames (the clutter sample of the score
+        test is too young).
     sea_sky : bool
         Find the sea-sky line in every frame and search only the band from ``band_above``
         pixels above it to ``band_below`` pixels below it (maritime scenes; off for sky or
@@ -64,7 +115,9 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
         robust sigmas of its own noise measured per 32-px tile, no grey gate, areas
         2-200 px. Sea scenes, whose waves and glints sit at the targets' scale, take the
         ``maritime`` profile (sea-sky band, unsmoothed, one level per frame, 5.5 sigmas,
-        5 px); the paper's absolute gates are the ``paper`` profile (data/profiles/).
+        5 px); the paper's absolute gates are the ``paper`` profile (data/profiles/). With
+        the detector's regions only the area and grey gates apply (grey: local SNR), and
+        ``tile`` sets the detector's noise tiles.
     grey_scale : float
         Grey difference counted as one unit of FCM distance, in robust sigmas of the
         first frame's suppressed residual (``irdetect.track.regions.residual_level``),
@@ -76,7 +129,7 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
         Tracker parameters, see :class:`irdetect.track.tracker.FCMPMHTTracker` (the GNN
         baseline ignores the FCM, adaptive-noise and merge ones).
     window : int
-        Frames read at a time.
+        Frames read at a time (the top-hat regions; the detector reads 12-frame windows).
 
     Returns
     -------
@@ -92,12 +145,20 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     --------
     >>> from irdetect.simulate.harbour import simulate_harbour
     >>> frames, truth = simulate_harbour(n_frames=60, rng=1)
-    >>> points, tracks = track(frames, sea_sky=True)
+    >>> points, tracks = track(frames, sea_sky=True, regions="tophat", false_tracks=0.0,
+    ...                        confirm_window=5)          # the maritime profile's regions
     >>> len(tracks) >= 3
     True
+    >>> from irdetect.simulate import simulate
+    >>> frames, truth = simulate("wan2008", snr=6, n_targets=1, n_frames=40, rng=1)
+    >>> points, tracks = track(frames)                     # the per-frame detector's regions
+    >>> len(tracks)
+    1
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if regions not in REGION_SOURCES:
+        raise ValueError(f"regions must be one of {REGION_SOURCES}, got {regions!r}")
     if not 0 <= min_area <= max_area:
         raise ValueError(f"need 0 <= min_area <= max_area, got {min_area!r}, {max_area!r}")
     if window < 1:
@@ -107,13 +168,37 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     n, h, w = frames.shape
     if not grey_scale > 0:
         raise ValueError(f"grey_scale must be > 0, got {grey_scale!r}")
-    # grey differences in sigmas of the first frame's residual: measured once per run
-    sigma = residual_level(np.asarray(frames[0]), suppress_size)[1] if n else 1.0
-    grey_levels = grey_scale * (sigma if np.isfinite(sigma) and sigma > 0 else 1.0)
+    if not (np.isfinite(false_tracks) and false_tracks >= 0):
+        raise ValueError(f"false_tracks must be a number >= 0, got {false_tracks!r}")
+    if not (np.isfinite(psf) and psf >= 0):
+        raise ValueError(f"psf must be a number >= 0, got {psf!r}")
+    if int(learn_frames) != learn_frames or learn_frames < 0:
+        raise ValueError(f"learn_frames must be an int >= 0, got {learn_frames!r}")
+    if not 0 < fraction <= 1:
+        raise ValueError(f"fraction must lie in (0, 1], got {fraction!r}")
+    detector = regions == "detector"
+    level = 0.0
+    if detector:
+        if tile < 1 or int(tile) != tile:
+            raise ValueError(f"tile must be an int >= 1 with regions = 'detector', got {tile!r}")
+        level = detector_level((h, w), false_rate)      # checks false_rate
+        # the detector's grey is a local SNR: its unit is one matched-filter sigma
+        grey_levels = grey_scale
+    else:
+        # grey differences in sigmas of the first frame's residual: measured once per run
+        s0 = residual_level(np.asarray(frames[0]), suppress_size)[1] if n else 1.0
+        grey_levels = grey_scale * (s0 if np.isfinite(s0) and s0 > 0 else 1.0)
+    test = None
+    if false_tracks > 0:
+        test = ClutterTest((h, w), false_tracks=false_tracks, sigma=sigma,
+                           max_speed=max_speed, radius=CLUTTER_RADIUS,
+                           floor=false_rate / float(h * w) if detector else 0.0,
+                           window=confirm_window, score_floor=level,
+                           learn=learn_frames)
     common = dict(frame_interval=frame_interval, q0=q0, r=r, gate=gate,
                   confirm_hits=confirm_hits, confirm_window=confirm_window,
                   max_misses=max_misses, max_tracks=max_tracks, init_speed=init_speed,
-                  feature_memory=feature_memory, max_birth_area=max_area)
+                  feature_memory=feature_memory, max_birth_area=max_area, confirm=test)
     if method == "gnn":
         tracker = GNNTracker(**common)
     else:
@@ -121,7 +206,8 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
             adaptive=adaptive, beta=beta, m=m, w_position=w_position, w_grey=w_grey,
             w_area=w_area, w_direction=w_direction, grey_scale=grey_levels,
             area_scale=area_scale, direction_after=direction_after, min_speed=min_speed,
-            max_merged=max_merged, merge_margin=merge_margin, **common)
+            max_merged=max_merged, merge_margin=merge_margin,
+            grey_relative=GREY_RELATIVE if detector else 0.0, **common)
     region_kw = dict(suppress_size=suppress_size, k=k, smooth=smooth, tile=tile,
                      min_contrast=min_contrast, min_area=min_area, max_area=2 * max_area,
                      min_grey=min_grey if grey_gate else -np.inf,
@@ -129,24 +215,56 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     if sea_sky and (band_above < 0 or band_below < 0):
         raise ValueError(f"band_above and band_below must be >= 0, got "
                          f"{band_above!r}, {band_below!r}")
+    if detector:
+        if sea_sky:
+            raise ValueError("sea_sky needs regions = 'tophat' (the maritime profile)")
+        extract_regions(np.zeros((8, 8), np.float32), **region_kw)   # names bad gates
     chunks: list[np.ndarray] = []
     emit = sink if sink is not None else chunks.append
+    offsets = np.zeros((n, 2))
     n_regions = 0
-    with tqdm(total=n, unit="frame", desc="track", disable=not progress) as bar:
+
+    def blocks():
+        """(first frame, frames' regions source, camera offsets) per block."""
+        if detector:
+            yield from detector_blocks(frames, length=DETECTOR_WINDOW, psf=psf, tile=int(tile),
+                                       suppression=suppression)
+            return
         for start in range(0, n, window):
             block = np.asarray(frames[start:start + window])
             if isinstance(frames, FrameSource):     # a file's frames must be finite
                 check_values(block, start, frames.path)
+            yield start, block, None
+
+    with tqdm(total=n, unit="frame", desc="track", disable=not progress) as bar:
+        for start, block, off in blocks():
+            if off is not None:
+                offsets[start:start + len(block)] = off
+                if camera_sink is not None:
+                    camera_sink(tables.from_columns(
+                        tables.CAMERA, frame=np.arange(start, start + len(block)),
+                        dx=off[:, 0], dy=off[:, 1]))
             out = []
             for j, frame in enumerate(block):
-                mask = None
-                if sea_sky:
-                    mask = sea_sky_band(find_sea_sky_line(frame), (h, w),
-                                        above=band_above, below=band_below)
-                regions = extract_regions(frame, mask=mask, **region_kw)
-                n_regions += len(regions)
-                out.append(tracker.step(start + j, regions, (h, w)))
+                if detector:
+                    regs = _gated(peak_regions(frame, level, fraction=fraction,
+                                               max_peaks=max_regions), region_kw)
+                    o = offsets[start + j]
+                    regs = _to_scene(regs, o)
+                else:
+                    mask = None
+                    if sea_sky:
+                        mask = sea_sky_band(find_sea_sky_line(frame), (h, w),
+                                            above=band_above, below=band_below)
+                    regs = extract_regions(frame, mask=mask, **region_kw)
+                    o = (0.0, 0.0)
+                n_regions += len(regs)
+                out.append(tracker.step(start + j, regs, (h, w), o))
             pts = np.concatenate(out) if out else tables.empty(tables.TRACK_POINT)
+            if len(pts) and detector:
+                # scene -> image coordinates at each point's frame
+                pts["x"] += offsets[pts["frame"], 0]
+                pts["y"] += offsets[pts["frame"], 1]
             if len(pts):
                 emit(pts)
             bar.update(len(block))
@@ -154,3 +272,24 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     log.debug("tracked %d frames: %d regions, %d confirmed tracks", n, n_regions, len(summary))
     points = np.concatenate(chunks) if chunks else tables.empty(tables.TRACK_POINT)
     return points, summary
+
+
+def _gated(regs: np.ndarray, kw: dict) -> np.ndarray:
+    """The detector's regions within the area gate [min_area, max_area] and the grey
+    interval [min_grey, max_grey] (grey: local SNR)."""
+    keep = ((regs["area"] >= kw["min_area"]) & (regs["area"] <= kw["max_area"])
+            & (regs["grey"] >= kw["min_grey"]) & (regs["grey"] <= kw["max_grey"]))
+    return regs[keep]
+
+
+def _to_scene(regs: np.ndarray, offset) -> np.ndarray:
+    """Regions in scene coordinates: image position minus the camera's offset (x, y px;
+    bounding boxes by the offset rounded to whole px)."""
+    if not len(regs) or not (offset[0] or offset[1]):
+        return regs
+    regs = regs.copy()
+    regs["x"] -= offset[0]
+    regs["y"] -= offset[1]
+    regs["bx"] -= int(round(offset[0]))
+    regs["by"] -= int(round(offset[1]))
+    return regs

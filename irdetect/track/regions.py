@@ -17,11 +17,15 @@ import numpy as np
 
 from irdetect.robust import tile_map, tile_samples
 
-#: One candidate region: centre (x = column, y = row, pixels), area (pixels), mean raw
-#: grey, mean suppressed contrast, bounding box (x0, y0 inclusive; w, h in pixels).
+#: One candidate region: centre (x = column, y = row, pixels), area (pixels), grey (here
+#: the mean raw grey; the per-frame detector's regions: mean local SNR,
+#: ``irdetect.track.detector``), contrast (here the mean suppressed contrast; the
+#: detector's: the peak's local SNR), shape (sqrt of the ratio of the second moments'
+#: eigenvalues, small to large: 1 round, towards 0 a line), bounding box (x0, y0
+#: inclusive; w, h in pixels).
 REGION = np.dtype([
     ("x", "<f8"), ("y", "<f8"), ("area", "<f8"), ("grey", "<f8"), ("contrast", "<f8"),
-    ("bx", "<i4"), ("by", "<i4"), ("bw", "<i4"), ("bh", "<i4"),
+    ("shape", "<f8"), ("bx", "<i4"), ("by", "<i4"), ("bw", "<i4"), ("bh", "<i4"),
 ])
 
 
@@ -277,6 +281,31 @@ def _regions(img, resid, binary, min_area, max_area, min_grey, max_grey, max_reg
     out = np.zeros(len(idx), REGION)
     out["x"], out["y"] = cents[idx, 0], cents[idx, 1]
     out["area"], out["grey"], out["contrast"] = area[idx], grey[idx], contrast[idx]
+    out["shape"] = axis_ratio(flat, np.ones(flat.size), img.shape[1], n)[idx]
     out["bx"], out["by"] = stats[idx, cv2.CC_STAT_LEFT], stats[idx, cv2.CC_STAT_TOP]
     out["bw"], out["bh"] = stats[idx, cv2.CC_STAT_WIDTH], stats[idx, cv2.CC_STAT_HEIGHT]
     return out
+
+
+def axis_ratio(labels, weights, width: int, n: int) -> np.ndarray:
+    """Shape of every labelled region: sqrt(l2 / l1) of the weighted second central moments
+    of its pixels (l1 >= l2 their eigenvalues; 1 for a round blob or a single pixel,
+    towards 0 for a line).
+
+    labels : ndarray of shape (H W,), int, the flattened label image (raster order);
+    weights : ndarray of the same shape (>= 0); width : W; n : number of labels.
+    Returns ndarray of shape (n,).
+    """
+    lab = np.asarray(labels).ravel()
+    v = np.asarray(weights, np.float64).ravel()
+    ys, xs = np.divmod(np.arange(lab.size), int(width))
+    wsum = np.maximum(np.bincount(lab, v, n), 1e-12)
+    cx, cy = np.bincount(lab, v * xs, n) / wsum, np.bincount(lab, v * ys, n) / wsum
+    dx, dy = xs - cx[lab], ys - cy[lab]
+    sxx = np.bincount(lab, v * dx * dx, n) / wsum
+    syy = np.bincount(lab, v * dy * dy, n) / wsum
+    sxy = np.bincount(lab, v * dx * dy, n) / wsum
+    half = 0.5 * (sxx + syy)
+    rad = np.sqrt(0.25 * (sxx - syy) ** 2 + sxy ** 2)
+    l1, l2 = half + rad, np.maximum(half - rad, 0.0)
+    return np.where(l1 > 1e-12, np.sqrt(l2 / np.maximum(l1, 1e-12)), 1.0)

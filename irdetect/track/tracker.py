@@ -21,6 +21,8 @@ interval). Output rows are :data:`irdetect.tables.TRACK_POINT`; summaries
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -53,6 +55,10 @@ class Track:
     first_frame: int = -1             # first and last released point
     last_frame: int = -1
     dead: bool = False                # ended by association (absorbed or duplicate)
+    # its hits while tentative: frame, x, y, the camera's offset dx, dy, the region's contrast
+    meas: list = field(default_factory=list)
+    clutter: int = 0                  # other regions near its predictions while tentative
+    zbar: np.ndarray | None = None    # its last synthetic measurement (x, y)
 
     @property
     def position(self) -> tuple[float, float]:
@@ -65,7 +71,8 @@ class _TrackerBase:
     def __init__(self, *, frame_interval: float = 1.0, q0: float = 1e-3, r: float = 0.5,
                  gate: float = 4.0, confirm_hits: int = 3, confirm_window: int = 5,
                  max_misses: int = 12, max_tracks: int = 50, init_speed: float = 2.0,
-                 feature_memory: float = 0.9, max_birth_area: float = np.inf):
+                 feature_memory: float = 0.9, max_birth_area: float = np.inf,
+                 confirm=None):
         checks = {"frame_interval": frame_interval, "q0": q0, "r": r, "gate": gate,
                   "init_speed": init_speed}
         for name, value in checks.items():
@@ -92,12 +99,17 @@ class _TrackerBase:
         self.init_speed = float(init_speed)
         self.feature_memory = float(feature_memory)
         self.max_birth_area = float(max_birth_area)
+        # the clutter test of confirmation (``irdetect.track.confirm.ClutterTest``); None:
+        # the M-of-N rule alone
+        self.confirm = confirm
         self.tracks: list[Track] = []
         self._ended: list[Track] = []
+        self._offset = (0.0, 0.0)         # the camera's offset of the frame being stepped
         self._next_id = 1
 
     # -- the frame step ------------------------------------------------------------------
-    def step(self, frame: int, regions: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    def step(self, frame: int, regions: np.ndarray, shape: tuple[int, int],
+             offset=(0.0, 0.0)) -> np.ndarray:
         """Advance all tracks by one frame.
 
         Parameters
@@ -108,6 +120,10 @@ class _TrackerBase:
             This frame's candidate regions (x = column, y = row, pixels).
         shape : (H, W)
             Frame size; a track predicted outside it (beyond ``gate`` pixels) ends.
+        offset : (float, float)
+            The camera's offset (x, y px) of this frame when the regions and tracks are in
+            scene coordinates (image minus offset, ``irdetect.camera``); the image's bounds
+            are then shifted by it. (0, 0): image coordinates.
 
         Returns
         -------
@@ -122,8 +138,11 @@ class _TrackerBase:
         h, w = shape
         margin = self.gate
         alive = []
+        ox, oy = float(offset[0]), float(offset[1])
+        self._offset = (ox, oy)
         for t in self.tracks:
             px, py = t.position
+            px, py = px + ox, py + oy
             if -margin <= px <= w - 1 + margin and -margin <= py <= h - 1 + margin:
                 alive.append(t)
             else:
@@ -131,6 +150,8 @@ class _TrackerBase:
         self.tracks = alive
         z = np.column_stack([regions["x"], regions["y"]]) if len(regions) else np.zeros((0, 2))
         assign, shared, blocked = self._associate(regions, z)
+        if self.confirm is not None:
+            self._count_clutter(z, assign)
         for i, t in enumerate(list(self.tracks)):
             rows = assign[i]
             if i in shared:
@@ -140,6 +161,9 @@ class _TrackerBase:
             elif len(rows):
                 wts = rows[1]
                 self._update(t, z[rows[0]], wts, regions[rows[0]])
+                if not t.confirmed:
+                    t.meas.append((frame, t.zbar[0], t.zbar[1]) + self._offset
+                                  + (float(regions["contrast"][rows[0]].max()),))
                 t.hits += 1
                 t.misses = 0
                 t.merged = 0
@@ -179,6 +203,7 @@ class _TrackerBase:
         """PMHT synthetic measurement: weighted mean of the regions, covariance R / sum(w)."""
         wsum = float(np.sum(wts))
         zbar = (wts[:, None] * zs).sum(axis=0) / wsum
+        t.zbar = zbar
         Rbar = self.R / min(wsum, 1.0) if wsum < 1 else self.R / wsum
         S = _H @ t.P @ _H.T + Rbar
         e = zbar - _H @ t.x
@@ -221,25 +246,72 @@ class _TrackerBase:
 
     def _manage(self, frame: int, out: list) -> None:
         keep = []
+        test = self.confirm
+        level = None
+        if test is not None:
+            # the tentative tracks' statistics, then the score clutter reaches this often
+            for t in self.tracks:
+                if not t.confirmed and not t.dead:
+                    test.measure(t, frame)
+            level = test.level(self.tracks, frame + 1, self.confirm_hits)
         for t in self.tracks:
             age = frame - t.born + 1
             if t.dead:
                 self._end(t)
                 continue
             if not t.confirmed:
-                if t.hits >= self.confirm_hits:
+                if t.hits >= self.confirm_hits and (test is None or test.passes(t, level)):
                     t.confirmed = True
+                    if test is not None:
+                        self._succeed(t, frame)
+                    t.meas = []
                     if t.misses == 0:
                         self._release(t, out)
-                elif age >= self.confirm_window or t.misses > self.confirm_window - \
-                        self.confirm_hits:
+                elif age >= self.confirm_window or (
+                        t.misses > self.confirm_window - self.confirm_hits if test is None
+                        else t.misses > test.misses):
+                    if test is not None:
+                        test.ended(t, self.confirm_hits)
                     self._end(t)
                     continue
             elif t.misses > self.max_misses:
                 self._end(t)
                 continue
             keep.append(t)
-        self.tracks = keep
+        self.tracks = [t for t in keep if not t.dead]   # taken over by a successor
+
+    def _succeed(self, t: Track, frame: int) -> None:
+        """A newly confirmed track born while a confirmed track coasts near its first hit
+        takes that track's id and history (the clutter-tested confirmation only): the
+        target jumped out of the old track's gate (a camera jump the offsets missed, a
+        centroid that moved) and the old track would end with an id switch.
+
+        Near: the old track, extrapolated back from ``frame`` at its velocity to the new
+        track's first hit, is within the confirmation's ``radius`` px of it, and it was
+        last hit before the new track's birth."""
+        if not t.meas:
+            return
+        f0, x0, y0 = t.meas[0][:3]
+        best, dist = None, self.confirm.radius
+        for o in self.tracks + self._ended[-self.max_tracks:]:
+            if (o is t or not o.confirmed or o.dead or o.misses == 0 or o.last_hit >= t.born
+                    or f0 - o.last_hit > self.max_misses + 1):
+                continue
+            # its state is predicted to the frame of its last miss
+            back = o.last_hit + o.misses - f0
+            d = math.hypot(o.x[0] - o.x[1] * back - x0, o.x[2] - o.x[3] * back - y0)
+            if d <= dist:
+                best, dist = o, d
+        if best is None:
+            return
+        t.track_id = best.track_id
+        t.pending = [(p[0], best.track_id) + tuple(p[2:]) for p in t.pending]
+        t.sums = best.sums.copy()
+        t.first_frame = best.first_frame
+        if best in self._ended:
+            self._ended.remove(best)
+        best.confirmed = False          # ends with no summary of its own
+        best.dead = True
 
     def _end(self, t: Track) -> None:
         t.pending = []
@@ -263,7 +335,22 @@ class _TrackerBase:
             self._next_id += 1
             t.pending.append((frame, t.track_id, reg["x"], reg["y"], 0.0, 0.0,
                               float(reg["area"]), float(reg["grey"]), True))
+            t.meas.append((frame, float(reg["x"]), float(reg["y"])) + self._offset
+                          + (float(reg["contrast"]),))
             self.tracks.append(t)
+
+    def _count_clutter(self, z: np.ndarray, assign) -> None:
+        """Add to every tentative track the regions of this frame within the clutter
+        test's radius of its prediction that it did not take (the local clutter)."""
+        tent = [i for i, t in enumerate(self.tracks) if not t.confirmed]
+        if not tent or not len(z):
+            return
+        pred = np.array([[self.tracks[i].x[0], self.tracks[i].x[2]] for i in tent])
+        near = np.hypot(*(z[None, :, :] - pred[:, None, :]).transpose(2, 0, 1)) \
+            <= self.confirm.radius
+        for row, i in enumerate(tent):       # a loop over the tentative tracks
+            own = len(assign[i][0]) if len(assign[i]) else 0
+            self.tracks[i].clutter += max(int(near[row].sum()) - own, 0)
 
     def _gate_matrix(self, z: np.ndarray) -> np.ndarray:
         """Squared Mahalanobis distance of each region to each predicted track, (n_t, n_r)."""
@@ -329,6 +416,10 @@ class FCMPMHTTracker(_TrackerBase):
         Weights of the squared normalised feature distances in J1 / J2.
     grey_scale : float
         Grey difference (grey levels) counted as one unit of distance.
+    grey_relative : float
+        With ``grey_relative`` > 0 the unit is at least this fraction of the larger of the
+        two greys (the per-frame detector's regions, whose grey is a local SNR that varies
+        in proportion to itself from frame to frame); 0: ``grey_scale`` alone.
     area_scale : float
         Relative area difference counted as one unit.
     direction_after : int
@@ -355,6 +446,14 @@ class FCMPMHTTracker(_TrackerBase):
         Exponential memory of a track's grey and area features.
     max_birth_area : float
         Regions larger than this (pixels) feed existing tracks and merges but start no track.
+    confirm : irdetect.track.confirm.ClutterTest, optional
+        A tentative track with ``confirm_hits`` hits is confirmed only when it also passes
+        this test (clutter of the measured density would rarely make a track as good;
+        ``irdetect.track.confirm``); None: the M-of-N rule alone. With the test, a track
+        confirmed while a confirmed track coasts (or ended coasting up to ``max_misses``
+        frames before) within the test's ``radius`` px of its first hit, last hit before
+        its birth, takes that track's id and history (a target that jumped out of its
+        track's gate).
 
     Notes
     -----
@@ -377,7 +476,7 @@ class FCMPMHTTracker(_TrackerBase):
                  w_position: float = 1.0, w_grey: float = 1.0, w_area: float = 1.0,
                  w_direction: float = 1.0, grey_scale: float = 20.0, area_scale: float = 0.5,
                  direction_after: int = 3, min_speed: float = 0.2, max_merged: int = 150,
-                 merge_margin: float = 1.0, **common):
+                 merge_margin: float = 1.0, grey_relative: float = 0.0, **common):
         super().__init__(**common)
         if not 0 <= beta < 1:
             raise ValueError(f"beta must be in [0, 1), got {beta!r}")
@@ -398,6 +497,9 @@ class FCMPMHTTracker(_TrackerBase):
         self.grey_scale, self.area_scale = float(grey_scale), float(area_scale)
         self.direction_after, self.min_speed = int(direction_after), float(min_speed)
         self.max_merged, self.merge_margin = int(max_merged), float(merge_margin)
+        if not grey_relative >= 0:
+            raise ValueError(f"grey_relative must be >= 0, got {grey_relative!r}")
+        self.grey_relative = float(grey_relative)
         self.last_memberships = np.zeros((0, 0))
 
     def process_noise(self, t: Track) -> np.ndarray:
@@ -423,7 +525,12 @@ class FCMPMHTTracker(_TrackerBase):
         grey = np.array([t.grey for t in self.tracks])
         area = np.array([t.area for t in self.tracks])
         D2 = wp * d2
-        D2 = D2 + wg * ((regions["grey"][None, :] - grey[:, None]) / self.grey_scale) ** 2
+        rg = regions["grey"][None, :]
+        unit = self.grey_scale
+        if self.grey_relative > 0:
+            unit = np.maximum(unit, self.grey_relative * np.maximum(np.abs(rg),
+                                                                    np.abs(grey[:, None])))
+        D2 = D2 + wg * ((rg - grey[:, None]) / unit) ** 2
         ra = regions["area"][None, :]
         D2 = D2 + ws * ((ra - area[:, None])
                         / (self.area_scale * np.maximum(ra, area[:, None]))) ** 2
@@ -483,7 +590,9 @@ class FCMPMHTTracker(_TrackerBase):
             if len(rows):
                 assign[ti] = (rows, u[ti, rows])
         blocked |= shared_regions | (best < n_t)
-        blocked |= (ok & confirmed[:, None]).any(axis=0)
+        # a region in a confirmed track's gate, or holding its prediction in its box
+        # (its gate may miss the region when the region's centroid jumps), starts no track
+        blocked |= ((ok | inside) & confirmed[:, None]).any(axis=0)
         # a tentative track sitting on a confirmed track's region is absorbed
         taken = np.zeros(n_r, bool)
         for ti in range(n_t):

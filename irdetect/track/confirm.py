@@ -1,0 +1,177 @@
+"""The tracker's confirmation test: is a tentative track more likely a target than clutter?
+
+A tentative track (``irdetect.track.tracker``) is confirmed only when
+
+1. it **moves against the scene**: its least-squares constant-velocity fit moves by at
+   least 3 sqrt(2) ``sigma`` px from its first to its last hit (as the per-frame path of
+   ``irdetect process`` requires, ``irdetect.pipeline.perframe``). Structure that stays
+   put in the scene (ground clutter the background leaves as residue) never does,
+   whatever its SNR; the regions and tracks are in scene coordinates (image minus the
+   camera's offset), so this holds for a panning camera too (the sensor's fixed pattern,
+   which stays put in the image, does move against the scene with the camera: requiring
+   motion in the image as well removed 14 of istd640-seq3-135's 26 false tracks but lost
+   the DAUB targets the camera holds still, so it is not done);
+2. clutter of the density measured around it would make at most ``false_tracks`` tracks
+   per frame as good anywhere in the frame: the scans clutter test of
+   ``irdetect.initiate.clutter`` (``chain_expectation``), E = H J min_j B(n_j; M, p(g_j))
+   with M the frames since its birth, n_j its hits within ``gate`` x LEVELS[j] sigmas of
+   its fit (sigma = ``sigma`` px), H the constant-velocity hypotheses of a frame of the
+   sequence's size over M - 1 frames at speeds up to ``max_speed`` px/frame, and the
+   clutter density the regions within ``radius`` px of its predictions that it did not
+   take, per frame and px^2, at least ``floor`` (the white-noise peaks per frame the
+   detector's level allows, over the frame's area). A track is tested at every frame of
+   its tentative life, and a new track may start at every frame, so E is compared with
+   ``false_tracks`` / ``window`` (``window`` = the frames a tentative track is tested on):
+   a rate per frame;
+3. its **score**, the median local SNR (the regions' contrast) of its hits, reaches the
+   score clutter of this sequence reaches ``false_tracks`` times per frame
+   (``irdetect.operating.tail_threshold``, as the per-frame path of ``irdetect process``
+   does), fitted to the scores of the tentative tracks that do not move (clutter by test
+   1: those that ended and those alive), and at least the detector's CFAR level. Nothing
+   is confirmed in the first ``learn`` frames, while that sample is too young to say how
+   the sequence's clutter scores (a track's points from its first hit on are still
+   released once it is confirmed).
+
+Coordinates: x = column, y = row, px; time in frames.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from irdetect.initiate.clutter import LEVELS, chain_expectation, hypotheses
+from irdetect.operating import tail_threshold
+
+#: the gate (sigmas) of the clutter test and of the motion test (the scans' default)
+GATE = 3.0
+
+
+class ClutterTest:
+    """The confirmation test of tentative tracks (module notes).
+
+    Parameters
+    ----------
+    shape : (int, int)
+        Frame (H, W).
+    false_tracks : float
+        Clutter tracks per frame allowed (> 0).
+    sigma : float
+        Position error of a region, px (> 0).
+    max_speed : float
+        Largest speed against the scene, px/frame (> 0).
+    radius : float
+        Regions within this many px of a track's predictions count as its local clutter.
+    floor : float
+        Lowest clutter density, regions per frame per px^2.
+    window : int
+        Frames a tentative track is tested on (the tracker's ``confirm_window``).
+    score_floor : float
+        The lowest score level (test 3): the detector's CFAR level.
+    misses : int
+        A tentative track ends after more than this many consecutive misses.
+    learn : int
+        Frames before the first confirmation (test 3).
+    """
+
+    def __init__(self, shape, *, false_tracks: float, sigma: float = 1.0,
+                 max_speed: float = 16.0, radius: float = 16.0, floor: float = 0.0,
+                 window: int = 30, score_floor: float = 0.0, misses: int = 3,
+                 learn: int = 12):
+        for name, value in (("false_tracks", false_tracks), ("sigma", sigma),
+                            ("max_speed", max_speed), ("radius", radius)):
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number, got {value!r}")
+        self.area = float(shape[0]) * float(shape[1])
+        self.rate = float(false_tracks) / max(int(window), 1)
+        self.sigma, self.max_speed = float(sigma), float(max_speed)
+        self.radius, self.floor = float(radius), float(floor)
+        self.false_tracks = float(false_tracks)
+        self.score_floor = float(score_floor)
+        self.static = np.zeros(0)           # scores of ended tentative tracks that stayed put
+        self.misses = int(misses)
+        self.learn = int(learn)
+
+    def expectation(self, meas: np.ndarray, age: int, clutter: int) -> tuple[float, float]:
+        """E and the fit's displacement of one track.
+
+        Parameters
+        ----------
+        meas : ndarray of shape (n, 5) or (n, 3)
+            The track's hits: frame, x, y (scene coordinates, px) and the camera's offset
+            (x, y px) of the frame (0 when not given).
+        age : int
+            Frames since its birth, inclusive (M).
+        clutter : int
+            Regions counted near its predictions over those frames.
+
+        Returns
+        -------
+        E : float
+            Expected clutter tracks as good (module notes).
+        moved : float
+            Displacement of the least-squares constant-velocity fit from the first to the
+            last hit, the smaller of that against the scene and that in the image, in
+            units of 3 sqrt(2) sigma (>= 1 passes test 1).
+        """
+        meas = np.asarray(meas, np.float64)
+        if meas.shape[1] == 3:
+            meas = np.column_stack([meas, np.zeros((len(meas), 2))])
+        f, x, y, ox, oy = meas.T
+        t = f - f.mean()
+        vt = float((t * t).sum())
+
+        def slope(v):
+            return float((t * (v - v.mean())).sum() / vt) if vt > 0 else 0.0
+
+        vx, vy = slope(x), slope(y)
+        ex = x - (x.mean() + vx * t)
+        ey = y - (y.mean() + vy * t)
+        e = np.hypot(ex, ey) / self.sigma
+        span = float(f.max() - f.min())
+        unit = GATE * math.sqrt(2.0) * self.sigma
+        # against the scene and against the image (the sensor's fixed pattern)
+        moved = math.hypot(vx, vy) * span / unit
+        M = max(int(age), len(meas))
+        hits = (e[:, None] <= GATE * np.asarray(LEVELS)[None, :]).sum(axis=0)[None, :]
+        disc = math.pi * self.radius ** 2
+        density = max(clutter / (max(M, 1) * disc), self.floor)
+        s = np.array([self.sigma])
+        H = hypotheses(self.area, float(M - 1), self.max_speed, GATE, s, s)
+        E = float(chain_expectation(hits, M, density, s, s, H, GATE)[0])
+        return E, moved
+
+    def measure(self, track, frame: int) -> None:
+        """Set a tentative track's ``E``, ``moved`` and ``score`` (the median contrast of
+        its hits: the peaks' local SNR) at ``frame`` (``irdetect.track.tracker.Track``:
+        its ``meas``, ``born`` and ``clutter``)."""
+        if len(track.meas) < 2:
+            track.E, track.moved = math.inf, 0.0
+        else:
+            meas = np.array(track.meas)
+            track.E, track.moved = self.expectation(meas[:, :5], frame - track.born + 1,
+                                                    track.clutter)
+        track.score = float(np.median([m[5] for m in track.meas]))
+
+    def level(self, tracks, n_frames: int, min_hits: int) -> float:
+        """The score clutter of this sequence reaches ``false_tracks`` times per frame
+        (``irdetect.operating.tail_threshold``): fitted to the scores of the tentative
+        tracks of at least ``min_hits`` hits that do not move (clutter by test 1: those
+        that ended, and those alive), floored at the detector's level."""
+        if n_frames < self.learn:
+            return math.inf         # too early to know this sequence's clutter
+        live = [t.score for t in tracks if not t.confirmed and len(t.meas) >= min_hits
+                and t.moved < 1.0]
+        return tail_threshold(np.concatenate([self.static, live]), n_frames,
+                              self.false_tracks, self.score_floor)
+
+    def ended(self, track, min_hits: int) -> None:
+        """A tentative track that ends unconfirmed: when it did not move, its score joins
+        the clutter sample."""
+        if len(track.meas) >= min_hits and getattr(track, "moved", 1.0) < 1.0:
+            self.static = np.append(self.static, track.score)
+
+    def passes(self, track, level: float) -> bool:
+        """Whether a measured tentative track passes the three tests."""
+        return track.moved >= 1.0 and track.E <= self.rate and track.score >= level
