@@ -60,21 +60,21 @@ class Evidence:
     shift: np.ndarray | None = None
 
 
-def _frame_blocks(evidence: Evidence) -> tuple[list, np.ndarray, dict]:
-    """The evidence frames as C-contiguous float32 blocks (F_j, H, W) (the pipeline's
-    blocks in place where they are float32 already), each frame's time relative to the
-    evidence's middle frame, float32 (F,), and the sampling's keywords for
-    ``_sample_sum``: ``shift`` (F, 2) float32 or None and ``cap`` (``CLIP`` sigmas)."""
+def _frame_blocks(evidence: Evidence) -> tuple[tuple, np.ndarray, dict]:
+    """The evidence as the kernels take it: its frames as 3 C-contiguous float32 blocks
+    (F_j, H, W) (``_three``; the pipeline's blocks in place where they are float32
+    already), each frame's time relative to the evidence's middle frame, float32 (F,),
+    and the sampling's keywords: ``shift`` (F, 2) float32 (zeros for a still camera) and
+    ``cap`` (``CLIP`` sigmas, float32; inf for no cap)."""
     frames = evidence.frames
     if isinstance(frames, np.ndarray):
         frames = [frames]
     elif len(frames) and np.ndim(frames[0]) == 2:
         frames = [np.stack(frames)]
-    blocks = [np.ascontiguousarray(b, dtype=np.float32) for b in frames]
     t = np.asarray(evidence.index, np.float64)
-    shift = None if evidence.shift is None else np.asarray(evidence.shift, np.float32)
-    cap = np.float32(CLIP * evidence.sigma) if CLIP > 0 else None
-    return blocks, (t - t.mean()).astype(np.float32), {"shift": shift, "cap": cap}
+    dts, shift, cap = _kernel_args(t - t.mean(), evidence.shift,
+                                   CLIP * evidence.sigma if CLIP > 0 else None)
+    return _three(frames), dts, {"shift": shift, "cap": cap}
 
 
 #: each frame's sample counts at most CLIP noise sigmas in a track sum (0 = no cap): a
@@ -145,10 +145,9 @@ def noise_level(frames) -> float:
     return float(max(np.median(out), np.finfo(np.float32).tiny)) if out else 1.0
 
 
-#: the search of ``track_significance``: the coarse stage's 3 x 3 grid step (px, nearest
-#: pixel, from each of ``Evidence.leads``), then the refinement's (position px,
+#: the search of ``track_significance``: the coarse stage's 3 x 3 grid of 1 px (the
+#: nearest pixel, from each of ``Evidence.leads``), then the refinement's (position px,
 #: velocity px/frame) 3 x 3 grid steps, each climbed for up to REFINE_ROUNDS rounds
-_COARSE = 1.0
 _REFINE = ((0.5, 0.05), (0.25, 0.025))
 REFINE_ROUNDS = 3
 _GRID = np.ascontiguousarray(
@@ -183,7 +182,7 @@ def track_significance(evidence: Evidence, points: np.ndarray, screen: float = -
 
     Notes
     -----
-    The coarse stage takes the best of a 3 x 3 grid of ``_COARSE`` px around the line
+    The coarse stage takes the best of a 3 x 3 grid of 1 px around the line
     moved ahead by each lead, on the nearest pixel (a 1-px grid on PSF-smoothed
     frames). The refinement is a bilinear hill climb for each of the ``_REFINE`` steps
     (``_refine``): a round samples the 3 x 3 positions around c at velocity v and the
@@ -207,7 +206,7 @@ def track_significance(evidence: Evidence, points: np.ndarray, screen: float = -
     z = np.zeros(len(p))
     # coarse: from each lead, the line moved ahead by lead frames of its own motion
     lead = np.repeat(np.asarray(evidence.leads, np.float64), len(_GRID))
-    grid = np.tile(_COARSE * _GRID, (len(evidence.leads), 1))
+    grid = np.tile(_GRID, (len(evidence.leads), 1))
     cc = c[:, None, :] + v[:, None, :] * lead[None, :, None] + grid[None]
     total = _grid_sums(frames, dts, c, v, evidence.leads, **kw)
     best = total.argmax(1)
@@ -219,18 +218,17 @@ def track_significance(evidence: Evidence, points: np.ndarray, screen: float = -
 
 def _refine(frames, dts, c, v, z, rows, norm, screen, kw) -> None:
     """The hill climb of ``track_significance`` for ``rows`` (those past the coarse
-    screen), c, v and z in place (the compiled ``irdetect.kernels.sampling.climb``)."""
-    dts, shift, cap = _kernel_args(dts, **kw)
-    rows = rows[row_order(c[rows, 1])]
-    climb(_three(frames), dts, shift, c, v, z, rows, float(norm),
-          np.array(_REFINE, np.float64), _GRID, REFINE_ROUNDS, float(screen), cap)
+    screen), c, v and z in place (the compiled ``irdetect.kernels.sampling.climb``;
+    ``frames``, ``dts``, ``kw`` as ``_frame_blocks`` gives them)."""
+    climb(frames, dts, kw["shift"], c, v, z, rows[row_order(c[rows, 1])], float(norm),
+          np.array(_REFINE, np.float64), REFINE_ROUNDS, float(screen), kw["cap"])
 
 
 def _three(blocks) -> tuple:
     """The evidence's blocks as the kernels take them: 3 float32 (F_j, H, W) arrays (the
     pipeline's 3 windows; fewer padded with empty blocks, more joined into one), so each
     kernel is compiled once, for one type."""
-    blocks = list(blocks)
+    blocks = [np.ascontiguousarray(b, dtype=np.float32) for b in blocks]
     if len(blocks) > 3:
         blocks = [np.concatenate(blocks)]
     empty = np.zeros((0,) + blocks[0].shape[1:], np.float32)
@@ -288,7 +286,7 @@ def _parallel_sums(evidence: Evidence, c, v, offsets, cap: bool = True):
         kw = {**kw, "cap": None}
     offsets = np.asarray(offsets, np.float64)
     cc = c[:, None, :] + (offsets if offsets.ndim == 3 else offsets[None])
-    return _sample_sum(frames, dts, cc, v[:, None, :], bilinear=True, **kw), len(dts)
+    return _sample_sum(frames, dts, cc, v[:, None, :], **kw), len(dts)
 
 
 #: the local test of a verified track (``local_significance``): parallel tracks at these
@@ -342,9 +340,9 @@ def local_significance(evidence: Evidence, c: np.ndarray, v: np.ndarray,
     return (np.asarray(z, np.float64) - med) / np.maximum(spread, 1.0)
 
 
-def _sample_sum(blocks, dts, cc, vv, bilinear, shift=None, cap=None):
-    """Track sums: sum_f S_f(c + v dts[f] + shift[f]) over the evidence frames, per
-    hypothesis.
+def _sample_sum(blocks, dts, cc, vv, shift=None, cap=None):
+    """Bilinear track sums: sum_f S_f(c + v dts[f] + shift[f]) over the evidence frames,
+    per hypothesis.
 
     Parameters
     ----------
@@ -356,8 +354,6 @@ def _sample_sum(blocks, dts, cc, vv, bilinear, shift=None, cap=None):
         Track positions (x, y) at the middle frame.
     vv : ndarray of shape (n, hyp, 2) or (n, 1, 2)
         Velocities (x, y) in px/frame.
-    bilinear : bool
-        Bilinear interpolation, else the nearest pixel.
     shift : ndarray of shape (F, 2), optional
         Each frame's offset (x, y) added to the track's position (``Evidence.shift``).
     cap : float, optional
@@ -382,24 +378,24 @@ def _sample_sum(blocks, dts, cc, vv, bilinear, shift=None, cap=None):
     dts, shift, cap = _kernel_args(dts, shift, cap)
     y0 = np.ascontiguousarray(c[..., 1])
     track_sums(_three(blocks), dts, shift, np.ascontiguousarray(c[..., 0]), y0,
-               np.ascontiguousarray(v[..., 0]), np.ascontiguousarray(v[..., 1]),
-               bool(bilinear), cap, row_order(y0[:, 0]), total)
+               np.ascontiguousarray(v[..., 0]), np.ascontiguousarray(v[..., 1]), cap,
+               row_order(y0[:, 0]), total)
     return total
 
 
-def _grid_sums(blocks, dts, c, v, leads, shift=None, cap=None):
-    """Nearest-pixel track sums of the coarse stage: for each lead, the 3 x 3 grid of
-    ``_COARSE`` (1) px around c + v lead at velocity v; (n, len(leads) x 9) float32 in the
-    order of ``np.tile(_GRID, (len(leads), 1))`` (the compiled
-    ``irdetect.kernels.sampling.patch_sums``)."""
+def _grid_sums(blocks, dts, c, v, leads, shift, cap):
+    """Nearest-pixel track sums of the coarse stage: for each lead, the 3 x 3 grid of 1 px
+    around c + v lead at velocity v; (n, len(leads) x 9) float32 in the order of
+    ``np.tile(_GRID, (len(leads), 1))`` (the compiled
+    ``irdetect.kernels.sampling.patch_sums``; ``blocks``, ``dts``, ``shift``, ``cap`` as
+    ``_frame_blocks`` gives them)."""
     f32 = np.float32
     total = np.zeros((len(c), len(leads) * len(_GRID)), f32)
-    dts, shift, cap = _kernel_args(dts, shift, cap)
     at = (c[:, None, :] + v[:, None, :] * np.asarray(leads, np.float64)[None, :, None]
           ).astype(f32)                                            # (n, leads, 2)
     vx, vy = (np.ascontiguousarray(v[:, i], f32) for i in (0, 1))
     y0 = np.ascontiguousarray(at[..., 1])
-    patch_sums(_three(blocks), dts, shift, np.ascontiguousarray(at[..., 0]), y0, vx, vy, cap,
+    patch_sums(blocks, dts, shift, np.ascontiguousarray(at[..., 0]), y0, vx, vy, cap,
                row_order(y0[:, 0]), total)
     return total
 

@@ -132,7 +132,7 @@ def test_verification_climbs_to_the_track_from_a_poor_fit(seed):
     assert np.hypot(*(c[0] - true_c)) < 0.4
     frames = [np.stack(ev.frames)]
     dts = (np.asarray(ev.index) - tm).astype(np.float32)
-    at_truth = _sample_sum(frames, dts, true_c[None, None], true_v[None, None], True)[0, 0]
+    at_truth = _sample_sum(frames, dts, true_c[None, None], true_v[None, None])[0, 0]
     assert z[0] >= 0.95 * at_truth / (ev.sigma * np.sqrt(36))
 
 
@@ -184,30 +184,40 @@ def test_verification_rejects_a_moving_edge():
                                                    ((12, 40, 30), False, 2e-4),
                                                    ((5, 3000, 12), True, 2e-3)])
 def test_track_sums_match_direct_interpolation(shape, bilinear, atol):
-    # the compiled sampler (``irdetect.kernels.sampling``) against scipy's
-    # interpolation, positions clamped to the frame, on small and on tall frames (float32
-    # positions near row 3000 keep 1/4000 px: the looser tolerance)
+    # the compiled samplers (``irdetect.kernels.sampling``: the bilinear sums, and the
+    # coarse stage's nearest-pixel 3 x 3 grids) against scipy's interpolation, positions
+    # clamped to the frame, on small and on tall frames (float32 positions near row 3000
+    # keep 1/4000 px: the looser tolerance)
     from scipy.ndimage import map_coordinates
 
-    from irdetect.verify import _sample_sum
+    from irdetect.verify import _GRID, _grid_sums, _kernel_args, _sample_sum, _three
     rng = np.random.default_rng(5)
     m, h, w = shape
     blocks = [rng.normal(size=shape).astype(np.float32) for _ in range(2)]
     dts = (np.arange(2 * m) - (2 * m - 1) / 2).astype(np.float32)
-    cc = np.column_stack([rng.uniform(-3, w + 3, 40), rng.uniform(-3, h + 3, 40)])
-    cc = cc.reshape(8, 5, 2)
-    vv = rng.uniform(-0.8, 0.8, (8, 5, 2))
-    got = _sample_sum(blocks, dts, cc, vv, bilinear=bilinear)
+    if bilinear:
+        cc = np.column_stack([rng.uniform(-3, w + 3, 40), rng.uniform(-3, h + 3, 40)])
+        cc = cc.reshape(8, 5, 2)
+        vv = rng.uniform(-0.8, 0.8, (8, 5, 2))
+        got = _sample_sum(blocks, dts, cc, vv)
+    else:
+        c = np.column_stack([rng.uniform(-3, w + 3, 8), rng.uniform(-3, h + 3, 8)])
+        v = rng.uniform(-0.8, 0.8, (8, 2))
+        d32, shift, cap = _kernel_args(dts)
+        got = _grid_sums(_three(blocks), d32, c, v, (0.0,), shift, cap)
+        cc = c[:, None, :] + _GRID[None]
+        vv = np.repeat(v[:, None, :], 9, 1)
     frames = np.concatenate(blocks)
     want = np.zeros(got.shape)
     for f, dt in enumerate(dts):
-        x = np.clip(cc[..., 0] + vv[..., 0] * dt, 0, w - 1)
-        y = np.clip(cc[..., 1] + vv[..., 1] * dt, 0, h - 1)
+        x = cc[..., 0] + vv[..., 0] * dt
+        y = cc[..., 1] + vv[..., 1] * dt
         if not bilinear:
-            x, y = np.floor(x + 0.5), np.floor(y + 0.5)
-        want += map_coordinates(frames[f].astype(np.float64), [y.ravel(), x.ravel()],
+            x, y = np.rint(x), np.rint(y)
+        want += map_coordinates(frames[f].astype(np.float64),
+                                [np.clip(y, 0, h - 1).ravel(), np.clip(x, 0, w - 1).ravel()],
                                 order=1, mode="nearest").reshape(got.shape)
-    assert got.shape == (8, 5)
+    assert got.shape == ((8, 5) if bilinear else (8, 9))
     np.testing.assert_allclose(got, want, atol=atol)
 
 

@@ -1,9 +1,11 @@
 """Track sums of the verification (``irdetect.verify``), compiled.
 
-``track_sums`` replaces one ``cv2.remap`` per block of frames over maps of every
-segment x hypothesis x frame (``x0 + vx dt + shift``, built with numpy): it walks each
-hypothesis's straight track through the frames and samples it where it lies, so no map
-is built and each segment's hypotheses are sampled from the same few cache lines.
+``patch_sums`` (the coarse stage's nearest-pixel grids), ``climb`` (the bilinear hill
+climb, one chain at a time) and ``track_sums`` (the bilinear sums of the ring and local
+tests) replace one ``cv2.remap`` per block of frames over maps of every segment x
+hypothesis x frame (``x0 + vx dt + shift``, built with numpy): they walk each
+hypothesis's straight track through the frames and sample it where it lies, so no map is
+built and each chain's hypotheses are sampled from the same few cache lines.
 """
 
 from __future__ import annotations
@@ -49,15 +51,6 @@ def _bilinear(img, x, y):
 
 
 @jit
-def _nearest(img, x, y):
-    """img (H, W) at the pixel nearest (x, y) (round half to even, as OpenCV), clamped."""
-    h, w = img.shape
-    x = min(max(x, np.float32(-1)), np.float32(w))
-    y = min(max(y, np.float32(-1)), np.float32(h))
-    return img[_clamp(int(np.rint(y)), h), _clamp(int(np.rint(x)), w)]
-
-
-@jit
 def _track_sum(blocks, dts, shift, x0, y0, vx, vy, cap):
     """One hypothesis's bilinear track sum sum_f min(S_f(x0 + vx dts[f] + shift[f]), cap),
     frame by frame in float32 (as ``track_sums``)."""
@@ -73,8 +66,9 @@ def _track_sum(blocks, dts, shift, x0, y0, vx, vy, cap):
 
 
 @jit
-def track_sums(blocks, dts, shift, x0, y0, vx, vy, bilinear, cap, order, out):
-    """sum_f min(S_f(x0 + vx dts[f] + shift[f, 0], y0 + vy dts[f] + shift[f, 1]), cap).
+def track_sums(blocks, dts, shift, x0, y0, vx, vy, cap, order, out):
+    """sum_f min(S_f(x0 + vx dts[f] + shift[f, 0], y0 + vy dts[f] + shift[f, 1]), cap),
+    bilinear, for every hypothesis of every row.
 
     Parameters
     ----------
@@ -88,8 +82,6 @@ def track_sums(blocks, dts, shift, x0, y0, vx, vy, bilinear, cap, order, out):
         Positions (x = column, y = row) at the middle frame.
     vx, vy : float32 ndarray (n, hyp) or (n, 1)
         Velocities, px/frame (one column: the same for every hypothesis of a row).
-    bilinear : bool
-        Bilinear interpolation, else the nearest pixel (round half to even, as OpenCV).
     cap : float32
         Each sample counts at most ``cap`` (inf: no cap).
     order : int64 ndarray (n,)
@@ -100,35 +92,21 @@ def track_sums(blocks, dts, shift, x0, y0, vx, vy, bilinear, cap, order, out):
     Notes
     -----
     Rows visited in order of their y at the middle frame (``row_order``) read the same
-    cached rows of each frame one after the other (3-4x faster than in input order on
-    256x256 and 640x512 frames, which do not fit the cache 36 at a time); each row's sum
-    is unchanged by the order. Positions outside a frame take its border pixels' values
-    (``cv2.BORDER_REPLICATE``); y is clipped to [0, H - 1] first, as the tall-image
-    ``cv2.remap`` of the numpy code did (``tests/test_kernels.py`` keeps it as the
-    reference). Sums are float32, frame by frame, so they agree with it to float32
-    rounding (about 1e-6 relative).
+    cached rows of each frame one after the other (1.8-5.7x faster than in input order
+    in a microbenchmark of random chains on 640x512 and 256x256 frames, which do not fit
+    the cache 36 at a time); each row's sum is unchanged by the order. Positions outside a
+    frame take its border pixels' values (``cv2.BORDER_REPLICATE``); y is clipped to
+    [0, H - 1] first, as the tall-image ``cv2.remap`` of the numpy code did
+    (``tests/test_kernels.py`` keeps it as the reference). Sums are float32, frame by
+    frame (``_track_sum``), so they agree with it to float32 rounding (about 1e-6
+    relative).
     """
-    n, hyp = x0.shape
     one_v = vx.shape[1] == 1
-    acc = np.zeros(hyp, np.float32)
     for i in order:
-        acc[:] = 0
-        f = 0
-        for blk in blocks:
-            for k in range(blk.shape[0]):
-                img = blk[k]
-                dt, sx, sy = dts[f], shift[f, 0], shift[f, 1]
-                for j in range(hyp):
-                    jv = 0 if one_v else j
-                    x = x0[i, j] + vx[i, jv] * dt + sx
-                    y = y0[i, j] + vy[i, jv] * dt + sy
-                    if bilinear:
-                        s = _bilinear(img, x, y)
-                    else:
-                        s = _nearest(img, x, y)
-                    acc[j] += min(s, cap)
-                f += 1
-        out[i, :] = acc
+        for j in range(x0.shape[1]):
+            jv = 0 if one_v else j
+            out[i, j] = _track_sum(blocks, dts, shift, x0[i, j], y0[i, j], vx[i, jv],
+                                   vy[i, jv], cap)
     return out
 
 
@@ -139,9 +117,8 @@ def patch_sums(blocks, dts, shift, x0, y0, vx, vy, cap, order, out):
 
     out[i, 9 l + 3 (dx + 1) + dy + 1] = sum_f min(S_f(rint(x_f) + dx, rint(y_f) + dy),
     cap), x_f = x0[i, l] + vx[i] dts[f] + shift[f, 0] (y_f alike), dx, dy in -1, 0, 1:
-    the coarse stage of ``irdetect.verify.track_significance`` (``track_sums`` with
-    ``bilinear=False`` over the grids' hypotheses), each frame's 9 samples read from one
-    3 x 3 patch instead of one rounding per hypothesis.
+    the coarse stage of ``irdetect.verify.track_significance``, each frame's 9 samples
+    read from one 3 x 3 patch instead of one rounding per hypothesis.
 
     Parameters
     ----------
@@ -162,8 +139,8 @@ def patch_sums(blocks, dts, shift, x0, y0, vx, vy, cap, order, out):
     -----
     rint(x) + dx is rint(x + dx) except at exact half-pixel ties (round half to even),
     where the numpy code's hypothesis x + dx could take the pixel beside. Each starting
-    point's 9 sums stay in registers over the frames (3x faster than 9 sums in an array
-    on the pipeline's chains).
+    point's 9 sums stay in registers over the frames (1.8-3x faster than 9 sums in an
+    array on chains saved from the pipeline).
     """
     n_l = x0.shape[1]
     for i in order:
@@ -227,7 +204,7 @@ def _grid_sums(blocks, dts, shift, xs, ys, vxs, vys, cap, out):
 
 
 @jit
-def climb(blocks, dts, shift, c, v, z, rows, norm, steps, grid, rounds, screen, cap):
+def climb(blocks, dts, shift, c, v, z, rows, norm, steps, rounds, screen, cap):
     """The refinement of ``irdetect.verify.track_significance``: a bilinear hill climb of
     each row's track, in place.
 
@@ -245,9 +222,9 @@ def climb(blocks, dts, shift, c, v, z, rows, norm, steps, grid, rounds, screen, 
     norm : float
         sigma sqrt(F).
     steps : float64 ndarray (S, 2)
-        (position step px, velocity step px/frame) of each refinement stage.
-    grid : float64 ndarray (9, 2)
-        The 3 x 3 offsets in steps (``verify._GRID``; its 5th row is (0, 0)).
+        (position step px, velocity step px/frame) of each refinement stage: the 3 x 3
+        grids are -1, 0, 1 steps along x and y (``verify._GRID``: hypothesis 3 a + b at
+        (a - 1, b - 1) steps).
     rounds : int
         Rounds per stage at most.
     screen : float
@@ -266,7 +243,6 @@ def climb(blocks, dts, shift, c, v, z, rows, norm, steps, grid, rounds, screen, 
     f32 = np.float32
     sums, vsums = np.empty(9, f32), np.empty(9, f32)
     xs, ys, vxs, vys = np.empty(3, f32), np.empty(3, f32), np.empty(3, f32), np.empty(3, f32)
-    offsets = np.array([grid[0, 0], grid[4, 0], grid[8, 0]])   # -1, 0, 1
     for i in rows:
         for s in range(len(steps)):
             dc, dv = steps[s, 0], steps[s, 1]
@@ -274,21 +250,18 @@ def climb(blocks, dts, shift, c, v, z, rows, norm, steps, grid, rounds, screen, 
             for _ in range(rounds):
                 cx, cy, vx, vy = c[i, 0], c[i, 1], v[i, 0], v[i, 1]
                 for a in range(3):
-                    d = offsets[a]
-                    xs[a], ys[a] = f32(cx + dc * d), f32(cy + dc * d)
+                    xs[a], ys[a] = f32(cx + dc * (a - 1)), f32(cy + dc * (a - 1))
                     vxs[a], vys[a] = f32(vx), f32(vy)
                 _grid_sums(blocks, dts, shift, xs, ys, vxs, vys, cap, sums)
                 for a in range(3):
-                    d = offsets[a]
                     xs[a], ys[a] = f32(cx), f32(cy)
-                    vxs[a], vys[a] = f32(vx + dv * d), f32(vy + dv * d)
+                    vxs[a], vys[a] = f32(vx + dv * (a - 1)), f32(vy + dv * (a - 1))
                 _grid_sums(blocks, dts, shift, xs, ys, vxs, vys, cap, vsums)
                 bc, bv = np.argmax(sums), np.argmax(vsums)
                 z[i] = max(sums[bc], vsums[bv]) / norm
-                c[i, 0], c[i, 1] = cx + dc * grid[bc, 0], cy + dc * grid[bc, 1]
-                v[i, 0], v[i, 1] = vx + dv * grid[bv, 0], vy + dv * grid[bv, 1]
-                moved = grid[bc, 0] != 0 or grid[bc, 1] != 0 or grid[bv, 0] != 0 \
-                    or grid[bv, 1] != 0
+                c[i, 0], c[i, 1] = cx + dc * (bc // 3 - 1), cy + dc * (bc % 3 - 1)
+                v[i, 0], v[i, 1] = vx + dv * (bv // 3 - 1), vy + dv * (bv % 3 - 1)
+                moved = bc != 4 or bv != 4           # 4: the grids' centre, (0, 0)
                 if not moved:
                     break
             if moved:
@@ -316,7 +289,7 @@ def warm_up() -> None:
     blocks = (np.zeros((1, 2, 2), f32),) * 3
     dts, shift = np.zeros(3, f32), np.zeros((3, 2), f32)
     first = np.zeros(1, np.int64)
-    track_sums(blocks, dts, shift, a, a, a, a, True, f32(np.inf), first, np.zeros((1, 1), f32))
+    track_sums(blocks, dts, shift, a, a, a, a, f32(np.inf), first, np.zeros((1, 1), f32))
     patch_sums(blocks, dts, shift, a, a, a[0], a[0], f32(np.inf), first, np.zeros((1, 9), f32))
     climb(blocks, dts, shift, np.zeros((1, 2)), np.zeros((1, 2)), np.zeros(1),
-          np.zeros(1, np.int64), 1.0, np.zeros((1, 2)), np.zeros((9, 2)), 1, 0.0, f32(np.inf))
+          np.zeros(1, np.int64), 1.0, np.zeros((1, 2)), 1, 0.0, f32(np.inf))
