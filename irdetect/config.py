@@ -126,6 +126,17 @@ class FrameConfig:
     confirm_n: int = 4
 
 
+@dataclass(frozen=True)
+class OperatingConfig:
+    """The combined-frame path's operating point (beyond the papers; docs/detection.md,
+    "Operating point"): a verified detection is kept when its significance on its
+    window's integrated map reaches the level the map's own clutter reaches
+    ``false_rate`` times per frame (``irdetect.operating.map_threshold``). ``false_rate
+    = 0`` keeps every verified chain (the paper's design)."""
+
+    false_rate: float = 0.1
+
+
 # --- track initiation (zhang2010, liang2015; issues 4, 5) -----------------------------
 
 @dataclass(frozen=True)
@@ -231,6 +242,7 @@ class ProcessConfig:
     correlate: CorrelateConfig = field(default_factory=CorrelateConfig)
     fast: FastConfig = field(default_factory=FastConfig)
     frame: FrameConfig = field(default_factory=FrameConfig)
+    operating: OperatingConfig = field(default_factory=OperatingConfig)
     initiate: InitiateConfig = field(default_factory=InitiateConfig)
     track: TrackConfig = field(default_factory=TrackConfig)
 

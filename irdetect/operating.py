@@ -15,13 +15,22 @@ model of extreme-value statistics, with the mean excess as its scale):
 
 N(s) the clutter items per sequence at or above s, n_u those above u. The threshold is the
 s at which N(s) / T = rate, T the frames of the sequence.
+
+The combined-frame path has no such sample of known clutter, but each window holds
+thousands of point-like structures of which a target is a handful: its operating point
+(``integrated_map``, ``map_threshold``, ``significance``) fits the same tail to the largest
+local maxima of the window's integrated, self-standardised map (docs/detection.md, "The
+combined-frame path's operating point").
 """
 
 from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
+
+from irdetect.robust import median_mad_sigma, tile_map, tile_samples
 
 #: fewest clutter scores above the sample's median a tail is fitted to; below it the
 #: floor alone applies (a scale from 2 or 3 excesses is no estimate: 2 strong chains among
@@ -62,3 +71,116 @@ def tail_threshold(clutter, n_frames: int, rate: float, floor: float) -> float:
         return float(floor)
     scale = float(excess.mean())
     return max(float(floor), u + scale * math.log(excess.size / (rate * n_frames)))
+
+
+# --- the combined-frame path's operating point: a CFAR on the window's integrated map ---
+
+#: the tail of a window's integrated map is fitted to its largest local maxima: this
+#: share of them, and at least MIN_TAIL (a target is a handful among thousands)
+TAIL_SHARE = 0.01
+MIN_TAIL = 10
+#: side (px) of the neighbourhood of which a local maximum of the map is the largest
+MAXIMUM_PX = 5
+#: a detection's significance is at least the map's largest value within this many px of
+#: it (a verified position 1-3 px off the target's peak still reads the target)
+NEAR_PX = 3
+
+
+def integrated_map(near: np.ndarray, tile: int = 32):
+    """A window's matched frames integrated in place and standardised by their own noise.
+
+    Parameters
+    ----------
+    near : ndarray of shape (L, H, W)
+        The window's matched, standardised frames, each dilated by 3 x 3 (the values
+        ``irdetect.pipeline.fusion.along_track`` reads).
+    tile : int
+        Side (px) of the tiles whose median and 1.4826 MAD standardise the mean.
+
+    Returns
+    -------
+    z, centre, scale : ndarray of float32 of shape (H, W)
+        z = (m - centre) / scale, m the mean over the L frames, centre its median and
+        scale its 1.4826 MAD per tile (bilinear between tile centres): the significance
+        of a still point in units of the measured noise of the window's mean. On white
+        noise the scale is one frame's sigma / sqrt(L); clutter that persists from frame
+        to frame (cloud and ground residue) keeps it near one frame's sigma, which the
+        white-noise scaling of the verification's sums cannot see.
+    """
+    m = near.mean(axis=0, dtype=np.float32)
+    h, w = m.shape
+    centre, scale = median_mad_sigma(tile_samples(m, tile))
+    centre = tile_map(centre, h, w)
+    scale = tile_map(np.maximum(scale, np.finfo(np.float32).tiny), h, w)
+    return (m - centre) / scale, centre, scale
+
+
+def map_threshold(z: np.ndarray, rate: float, length: int) -> float:
+    """The significance clutter of this window's map reaches ``rate`` times per frame.
+
+    The local maxima of ``z`` (the largest of their ``MAXIMUM_PX`` square, above 0) are
+    the window's point-like structures, nearly all clutter. Their tail is modelled as
+    exponential (the module notes' model) above u, the largest but n_u of them (n_u =
+    max(``MIN_TAIL``, ``TAIL_SHARE`` x their number)), with the scale lambda = median
+    excess / ln 2 (the median of an exponential excess is lambda ln 2; a few targets far
+    in the tail do not move it as they move the mean):
+
+        threshold = u + lambda log(n_u / (rate L))
+
+    Parameters
+    ----------
+    z : ndarray of shape (H, W)
+        ``integrated_map``'s z.
+    rate : float
+        Clutter maxima per frame allowed at or above the threshold (> 0).
+    length : int
+        Frames of the window (L).
+
+    Returns
+    -------
+    float
+        The threshold; -inf when the map has ``MIN_TAIL`` maxima or fewer (too small a
+        frame to measure a tail on).
+    """
+    if not (math.isfinite(rate) and rate > 0):
+        raise ValueError(f"rate must be a positive number, got {rate!r}")
+    z = np.ascontiguousarray(z, np.float32)
+    peak = (z >= cv2.dilate(z, np.ones((MAXIMUM_PX, MAXIMUM_PX), np.uint8))) & (z > 0)
+    v = z[peak]
+    n_u = max(MIN_TAIL, int(math.ceil(TAIL_SHARE * v.size)))
+    if v.size <= n_u:
+        return -math.inf
+    v = -np.partition(-v, n_u)[:n_u + 1]          # the n_u + 1 largest, u the last
+    u = float(v[n_u])
+    scale = float(np.median(v[:n_u] - u)) / math.log(2.0)
+    return u + scale * math.log(n_u / (rate * length))
+
+
+def significance(integrated, snr: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Detections' significance on their window's integrated map.
+
+    Parameters
+    ----------
+    integrated : (z, centre, scale)
+        ``integrated_map`` of the window.
+    snr : ndarray of shape (N,)
+        The detections' mean matched value along their tracks over the window
+        (``irdetect.pipeline.fusion.along_track``).
+    x, y : ndarray of shape (N,)
+        Positions (x = column, y = row, px) at the window's middle frame.
+
+    Returns
+    -------
+    ndarray of shape (N,)
+        The larger of the track's mean standardised like the map, (snr - centre) /
+        scale (a moving target integrates along its track, not in place), and the map's
+        largest z within ``NEAR_PX`` px (a still target's own peak).
+    """
+    z, centre, scale = integrated
+    h, w = z.shape
+    col = np.clip(np.rint(x), 0, w - 1).astype(np.intp)
+    row = np.clip(np.rint(y), 0, h - 1).astype(np.intp)
+    side = 2 * NEAR_PX + 1
+    best = cv2.dilate(np.ascontiguousarray(z), np.ones((side, side), np.uint8))[row, col]
+    along = (snr - centre[row, col]) / scale[row, col]
+    return np.fmax(best.astype(np.float64), along)

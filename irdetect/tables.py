@@ -20,12 +20,17 @@ TRUTH = np.dtype([
 #: says which path found it (``PATH_COMBINED``, ``PATH_FRAME`` or both bits); ``snr`` is the
 #: score both paths share: the local SNR per frame, in matched-filter sigmas, along the
 #: detection's track over the window; ``support`` the share of the window's frames with a
-#: per-frame peak on that track (``irdetect.pipeline.fusion``).
+#: per-frame peak on that track (``irdetect.pipeline.fusion``); ``significance`` the
+#: detection's value on its window's integrated map in units of that map's measured noise
+#: (the combined-frame path; the per-frame path's rows: their ``snr``) and ``level`` the
+#: window's operating point on it (``irdetect.operating``; -inf for the per-frame path's
+#: rows, kept by that path's own test, and with ``operating.false_rate = 0``).
 DETECTION = np.dtype([
     ("x", "<f8"), ("y", "<f8"), ("frame_start", "<i8"), ("frame_end", "<i8"),
     ("combined_frame", "<i8"), ("intensity", "<f8"), ("score", "<f8"),
     ("vx", "<f8"), ("vy", "<f8"), ("n_members", "<i4"),
     ("path", "<i1"), ("snr", "<f8"), ("support", "<f8"),
+    ("significance", "<f8"), ("level", "<f8"),
 ])
 
 #: ``path`` bits of detections and tracks: the combined-frame path, the per-frame path.

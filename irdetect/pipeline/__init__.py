@@ -30,7 +30,7 @@ from irdetect.combine import frames_needed, window_starts
 from irdetect.config import ProcessConfig, to_json
 from irdetect.errors import InputError, refused_settings
 from irdetect.pipeline.combined import Pending, StageParams, correlate_windows, front
-from irdetect.pipeline.fusion import finish, initiate_tracks
+from irdetect.pipeline.fusion import SUPPORT_GATE, finish, initiate_tracks
 from irdetect.pipeline.reader import Reader
 from irdetect.pipeline.timing import Ready, lap
 from irdetect.suppress import future_frames, past_frames
@@ -45,9 +45,6 @@ _Reader = Reader
 #: the tables ``iter_results`` yields per window (``finish`` makes the run's final
 #: /detections, /frame_tracks and /tracks from them)
 CHUNK_TABLES = ("candidates", "combined_detections", "segments", "camera", "frame_detections")
-#: a per-frame peak within this many position sigmas of a combined-frame detection's track
-#: supports it (the per-frame path's gate)
-SUPPORT_GATE = 3.0
 
 log = logging.getLogger(__name__)
 
@@ -160,6 +157,9 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
     n_frames = shape[0]
     config = fit_config(config, n_frames)
     cc = config.combine
+    rate = config.operating.false_rate
+    if not (np.isfinite(rate) and rate >= 0):
+        raise ValueError(f"operating.false_rate must be a number >= 0, got {rate!r}")
     if int(workers) != workers or workers < 1:
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     starts = window_starts(n_frames, length=cc.length, step=cc.step)
@@ -238,7 +238,8 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
             pending.append(Pending(cand, cc.length if cc.projection == "dp" else 0,
                                     matched, int(s), config.correlate.tolerance,
                                     reader.offsets[s:s + cc.length].copy(), peaks,
-                                    SUPPORT_GATE * config.frame.sigma))
+                                    SUPPORT_GATE * config.frame.sigma,
+                                    config.operating.false_rate))
             log.debug("combined frame %d (frames %d-%d): %d candidate pixels, %d fused points",
                       k, s, s + cc.length - 1, n_pixels, len(cand))
             if k >= N_CORRELATE - 1:

@@ -21,7 +21,8 @@ from irdetect.correlate import Correlation, correlate
 from irdetect.detect import detect
 from irdetect.fuse import fuse
 from irdetect.peaks import frame_level, frame_peaks
-from irdetect.pipeline.fusion import along_track
+from irdetect.operating import integrated_map, map_threshold, significance
+from irdetect.pipeline.fusion import along_track, dilated
 from irdetect.pipeline.timing import lap
 from irdetect.suppress import suppress
 from irdetect.verify import DP_LEADS, Evidence, matched_frame, noise_level, standardise
@@ -202,8 +203,10 @@ class Pending:
     """Candidates of one combined frame waiting for the segments that may confirm them."""
 
     def __init__(self, table: np.ndarray, dp_length: int = 0, matched=None, start: int = 0,
-                 tolerance: float = 5.0, camera=None, peaks=None, radius: float = 3.0):
+                 tolerance: float = 5.0, camera=None, peaks=None, radius: float = 3.0,
+                 false_rate: float = 0.0):
         self.table = table
+        self.false_rate = false_rate  # the operating point's clutter rate (0: none)
         self.peaks = peaks          # the per-frame path's peaks of the window (or None)
         self.radius = radius        # a peak this close to a detection's track supports it
         # the camera's offsets (L, 2) of the window's frames
@@ -254,9 +257,15 @@ class Pending:
         ok = np.isfinite(pos[:, 0])
         det["x"][ok], det["y"][ok] = pos[ok, 0], pos[ok, 1]
         det["path"] = tables.PATH_COMBINED
+        det["significance"], det["level"] = np.nan, -np.inf
         if self.matched is not None:
-            det["snr"], det["support"] = along_track(det, self.matched, self.start,
-                                                     self.peaks, self.radius)
+            near = dilated(self.matched)
+            det["snr"], det["support"] = along_track(det, near, self.start, self.peaks,
+                                                     self.radius)
+            integrated = integrated_map(near)
+            det["significance"] = significance(integrated, det["snr"], det["x"], det["y"])
+            if self.false_rate > 0:
+                det["level"] = map_threshold(integrated[0], self.false_rate, len(near))
         self.matched = None         # release the frames
         return {"candidates": c, "combined_detections": det, "segments": segments}
 

@@ -5,10 +5,11 @@ The combined-frame path (``irdetect.pipeline.combined``) integrates 12 frames an
 targets too dim for any single frame; the per-frame path (``irdetect.pipeline.perframe``)
 follows targets too fast for a combined frame. Per window (``fuse_paths``):
 
-* every combined-frame detection is kept, with its track's local SNR per frame (``snr``:
-  the matched, standardised residual along the track over the window) and the share of
-  the window's frames with a per-frame peak on it (``support``), so both paths' rows carry
-  the same score;
+* every combined-frame detection that reaches its window's operating point
+  (``irdetect.operating``: ``significance`` >= ``level``) is kept, with its track's local
+  SNR per frame (``snr``: the matched, standardised residual along the track over the
+  window) and the share of the window's frames with a per-frame peak on it (``support``),
+  so both paths' rows carry the same score;
 * every kept per-frame track gives a detection at the window's middle frame;
 * a combined-frame and a per-frame detection within ``MERGE_PX`` of each other are one
   target (``path`` both bits; the per-frame position, measured frame by frame, is kept).
@@ -37,7 +38,14 @@ _NEIGHBOURS = np.ones((3, 3), np.uint8)
 MERGE_PX = 6.0
 
 
-def along_track(det: np.ndarray, matched, start: int, peaks, radius: float):
+def dilated(matched: np.ndarray) -> np.ndarray:
+    """Each of a window's matched frames (L, H, W) dilated by 3 x 3: the largest value of
+    the 3 x 3 pixels about each pixel, so a track 1 px off the target's peak (the combined
+    frame's position error) still reads its SNR. float32 (L, H, W)."""
+    return np.stack([cv2.dilate(f, _NEIGHBOURS) for f in matched])
+
+
+def along_track(det: np.ndarray, near, start: int, peaks, radius: float):
     """Local SNR per frame and per-frame support of detections along their tracks.
 
     Parameters
@@ -45,8 +53,9 @@ def along_track(det: np.ndarray, matched, start: int, peaks, radius: float):
     det : structured ndarray
         ``tables.DETECTION`` rows of one window: position (x, y px) at the window's
         middle frame, image velocity (vx, vy px/frame; NaN taken as 0).
-    matched : ndarray of shape (L, H, W)
-        The window's matched, standardised frames (frames start .. start + L - 1).
+    near : ndarray of shape (L, H, W)
+        The window's matched, standardised frames (frames start .. start + L - 1),
+        ``dilated``.
     start : int
         The window's first frame.
     peaks : structured ndarray or None
@@ -61,7 +70,7 @@ def along_track(det: np.ndarray, matched, start: int, peaks, radius: float):
         the track's position, and the share of the L frames with a peak within
         ``radius``.
     """
-    n, (L, h, w) = len(det), matched.shape
+    n, (L, h, w) = len(det), near.shape
     if not n:
         return np.zeros(0), np.zeros(0)
     t = np.arange(L) - (L - 1) / 2.0
@@ -70,9 +79,6 @@ def along_track(det: np.ndarray, matched, start: int, peaks, radius: float):
     y = det["y"][:, None] + vy[:, None] * t[None]
     col = np.clip(np.rint(x), 0, w - 1).astype(np.intp)
     row = np.clip(np.rint(y), 0, h - 1).astype(np.intp)
-    # the largest value of the 3 x 3 pixels about the track: a track 1 px off the
-    # target's peak (the combined frame's position error) still reads its SNR
-    near = np.stack([cv2.dilate(f, _NEIGHBOURS) for f in matched])
     snr = near[np.arange(L)[None], row, col].mean(axis=1)
     if peaks is None:
         return snr, np.full(n, np.nan)
@@ -84,6 +90,53 @@ def along_track(det: np.ndarray, matched, start: int, peaks, radius: float):
                 np.column_stack([x[:, i], y[:, i]]), distance_upper_bound=radius)
             hit[:, i] = np.isfinite(d)
     return snr, hit.mean(axis=1)
+
+
+#: a per-frame peak within this many position sigmas of a combined-frame detection's track
+#: supports it (the per-frame path's gate); the operating point's hysteresis gate too
+SUPPORT_GATE = 3.0
+
+#: a combined-frame detection below its window's level is kept when it continues a
+#: detection at or above the level of a window up to this many windows away (hysteresis)
+REACH = 2
+
+
+def operating_point(combined: np.ndarray, gate: float) -> np.ndarray:
+    """Which combined-frame detections the operating point keeps (``irdetect.operating``).
+
+    A detection is kept when its ``significance`` reaches its window's ``level`` (-inf:
+    no operating point), or when it lies within ``gate`` px of the position of such
+    a detection of a window up to ``REACH`` windows away, moved by that one's velocity to
+    its time: the threshold's hysteresis, so a target faint for a window (a camera-held
+    target the temporal background half absorbs) stays with its track, while clutter that
+    never reaches the level starts none.
+
+    Parameters
+    ----------
+    combined : structured ndarray
+        ``tables.DETECTION`` rows of every window (x, y px at the window's middle frame;
+        vx, vy px/frame, NaN taken as 0).
+    gate : float
+        px.
+
+    Returns
+    -------
+    ndarray of bool of shape (N,)
+    """
+    strong = ~(combined["significance"] < combined["level"])
+    weak = np.flatnonzero(~strong)
+    keep = strong.copy()
+    s = np.flatnonzero(strong)
+    if not len(weak) or not len(s):
+        return keep
+    t = 0.5 * (combined["frame_start"] + combined["frame_end"])
+    near = np.abs(combined["combined_frame"][weak, None] - combined["combined_frame"][None, s])
+    dt = t[weak, None] - t[None, s]                                       # (weak, strong)
+    px = combined["x"][s] + np.nan_to_num(combined["vx"][s]) * dt
+    py = combined["y"][s] + np.nan_to_num(combined["vy"][s]) * dt
+    d = np.hypot(px - combined["x"][weak, None], py - combined["y"][weak, None])
+    keep[weak] = ((near >= 1) & (near <= REACH) & (d <= gate)).any(axis=1)
+    return keep
 
 
 def fuse_paths(combined: np.ndarray, frame_tracks: np.ndarray) -> np.ndarray:
@@ -108,6 +161,7 @@ def fuse_paths(combined: np.ndarray, frame_tracks: np.ndarray) -> np.ndarray:
         frame_end=ft["frame_end"], combined_frame=ft["combined_frame"], intensity=ft["score"],
         score=ft["score"], vx=ft["vx"], vy=ft["vy"], n_members=ft["n_points"],
         path=np.full(len(ft), tables.PATH_FRAME, np.int8), snr=ft["score"],
+        significance=ft["score"], level=np.full(len(ft), -np.inf),
         support=ft["n_points"] / np.maximum(1, ft["frame_end"] - ft["frame_start"] + 1))
     # a combined detection near a per-frame one of its window is that target: one row
     # (pairs one to one, nearest first, so two targets side by side stay two)
@@ -124,6 +178,7 @@ def fuse_paths(combined: np.ndarray, frame_tracks: np.ndarray) -> np.ndarray:
         f, c = fi[rows[ok]], ci[cols[ok]]
         frame["path"][f] |= tables.PATH_COMBINED
         frame["snr"][f] = np.fmax(frame["snr"][f], comb["snr"][c])
+        frame["significance"][f] = np.fmax(frame["significance"][f], comb["significance"][c])
         same[c] = True
     out = np.concatenate([comb[~same], frame])
     return out[np.argsort(out["combined_frame"], kind="stable")]
@@ -255,9 +310,10 @@ def finish(combined: np.ndarray, peaks: np.ndarray, camera: np.ndarray,
                           false_rate=fc.false_rate, sigma=fc.sigma, max_speed=fc.max_speed,
                           false_tracks=fc.false_tracks,
                           confirm_m=fc.confirm_m, confirm_n=fc.confirm_n)
-        detections = fuse_paths(combined, ft)
     else:
-        ft, detections = tables.empty(tables.FRAME_TRACK), combined
+        ft = tables.empty(tables.FRAME_TRACK)
+    combined = combined[operating_point(combined, SUPPORT_GATE * fc.sigma)]
+    detections = fuse_paths(combined, ft) if fc.enabled else combined
     tracks = initiate_tracks(detections, config, camera)
     tracks["path"] = track_paths(tracks, detections, camera,
                                  config.initiate.gate * config.initiate.sigma)
