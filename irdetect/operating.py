@@ -86,28 +86,29 @@ MAXIMUM_PX = 5
 NEAR_PX = 3
 
 
-def integrated_map(near: np.ndarray, tile: int = 32):
-    """A window's matched frames integrated in place and standardised by their own noise.
+def integrated_map(mean: np.ndarray, tile: int = 32):
+    """A map of the matched frames' mean standardised by its own noise.
 
     Parameters
     ----------
-    near : ndarray of shape (L, H, W)
-        The window's matched, standardised frames, each dilated by 3 x 3 (the values
-        ``irdetect.pipeline.fusion.along_track`` reads).
+    mean : ndarray of shape (H, W)
+        The mean over F frames of the matched, standardised frames, each dilated by
+        3 x 3 (``irdetect.pipeline.fusion.dilated_sum`` / F: the values
+        ``irdetect.pipeline.fusion.track_mean`` reads).
     tile : int
         Side (px) of the tiles whose median and 1.4826 MAD standardise the mean.
 
     Returns
     -------
     z, centre, scale : ndarray of float32 of shape (H, W)
-        z = (m - centre) / scale, m the mean over the L frames, centre its median and
-        scale its 1.4826 MAD per tile (bilinear between tile centres): the significance
-        of a still point in units of the measured noise of the window's mean. On white
-        noise the scale is one frame's sigma / sqrt(L); clutter that persists from frame
-        to frame (cloud and ground residue) keeps it near one frame's sigma, which the
-        white-noise scaling of the verification's sums cannot see.
+        z = (mean - centre) / scale, centre the median and scale the 1.4826 MAD per
+        tile (bilinear between tile centres): the significance of a still point in units
+        of the measured noise of the mean. On white noise the scale is one frame's sigma
+        / sqrt(F); residue that persists from frame to frame (cloud and ground clutter)
+        keeps it near one frame's sigma, which the white-noise scaling of the
+        verification's sums cannot see.
     """
-    m = near.mean(axis=0, dtype=np.float32)
+    m = np.asarray(mean, np.float32)
     h, w = m.shape
     centre, scale = median_mad_sigma(tile_samples(m, tile))
     centre = tile_map(centre, h, w)
@@ -157,15 +158,15 @@ def map_threshold(z: np.ndarray, rate: float, length: int) -> float:
 
 
 def significance(integrated, snr: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Detections' significance on their window's integrated map.
+    """Detections' significance on an integrated map.
 
     Parameters
     ----------
     integrated : (z, centre, scale)
         ``integrated_map`` of the window.
     snr : ndarray of shape (N,)
-        The detections' mean matched value along their tracks over the window
-        (``irdetect.pipeline.fusion.along_track``).
+        The detections' mean matched value along their tracks over the map's frames
+        (``irdetect.pipeline.fusion.track_mean``).
     x, y : ndarray of shape (N,)
         Positions (x = column, y = row, px) at the window's middle frame.
 

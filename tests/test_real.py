@@ -219,10 +219,12 @@ REAL_FLOORS = (("daub-data20", 8, 7, 0.125, 3.0), ("daub-data13-b", 8, 7, 0.125,
                ("daub-data13-a", 8, 7, 0.125, 3.0), ("daub-data15-a", 8, 7, 0.125, 3.0),
                ("daub-data14", 8, 7, 0.125, 3.0),
                ("easy1", 3, 3, 0.34, 5.0),
-               # the operating point (``operating.false_rate``): seq3-135 had 23 false
-               # detections per window without it (1.8 with it), and data22-a's faint
-               # windows 1 and 2 (camera-held target) need its hysteresis (5 of 8 without)
-               ("istd640-seq3-135", 5, 5, 2.0, 5.0), ("daub-data22-a", 8, 7, 0.125, 3.0))
+               # the operating point (``operating.false_rate``): seq3-135 and seq2-204 had
+               # 23 and 10 false detections per window without it (1.0 and 0.8 with it);
+               # data22-a's faint windows 1 and 2 (camera-held target) fell below a level
+               # measured on 12 frames (5 of 8): the 36 of a chain keep them
+               ("istd640-seq3-135", 5, 5, 1.2, 5.0), ("istd640-seq2-204", 5, 5, 1.2, 5.0),
+               ("daub-data22-a", 8, 7, 0.125, 3.0))
 
 
 @pytest.mark.parametrize("name, targets, floor_detected, ceiling_false, gate", REAL_FLOORS)

@@ -208,7 +208,18 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
             p.confirm(corr.index[:, i], segments, corr.positions[:, i])
         first += 1
         done = pending.popleft()
-        return with_camera(done.emit(segments), done.start + cc.length, done.peaks)
+        return with_camera(emit(done, segments), done.start + cc.length, done.peaks)
+
+    emitted: deque = deque(maxlen=N_CORRELATE - 1)   # the last windows whose frames stay
+
+    def emit(done: Pending, segments) -> dict:
+        """``done.emit`` with the windows beside it; the last windows of the sequence keep
+        their frames for the ones after them, which have fewer windows ahead."""
+        k = int(np.searchsorted(starts, done.start))     # done's window index
+        chunk = done.emit(segments, pending, reversed(emitted),
+                          keep_frames=k >= len(starts) - N_CORRELATE)
+        emitted.append(done)
+        return chunk
 
     camera_done = 0              # frames whose /camera rows were emitted
 
@@ -259,8 +270,8 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
             yield take()
         while pending:
             done = pending.popleft()
-            yield with_camera(done.emit(tables.empty(tables.SEGMENT)), done.start + cc.length,
-                              done.peaks)
+            yield with_camera(emit(done, tables.empty(tables.SEGMENT)),
+                              done.start + cc.length, done.peaks)
     finally:
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)

@@ -22,7 +22,7 @@ from irdetect.detect import detect
 from irdetect.fuse import fuse
 from irdetect.peaks import frame_level, frame_peaks
 from irdetect.operating import integrated_map, map_threshold, significance
-from irdetect.pipeline.fusion import along_track, dilated
+from irdetect.pipeline.fusion import along_track, dilated_sum, track_mean
 from irdetect.pipeline.timing import lap
 from irdetect.suppress import suppress
 from irdetect.verify import DP_LEADS, Evidence, matched_frame, noise_level, standardise
@@ -199,6 +199,10 @@ def evidence_of(pending, cc) -> Evidence | None:
                     leads=DP_LEADS if dp else (0.0,))
 
 
+#: the windows the operating point integrates over: a chain's (``N_CORRELATE``)
+OPERATING_WINDOWS = 3
+
+
 class Pending:
     """Candidates of one combined frame waiting for the segments that may confirm them."""
 
@@ -214,6 +218,7 @@ class Pending:
         self.tolerance = tolerance  # verified positions this close are one target
         self.dp_length = dp_length
         self.matched = matched      # matched residual frames of the window (or None)
+        self._dilated_sum = None
         self.start = start          # the window's first frame
         n = len(table)
         self.vx = np.full(n, np.nan)
@@ -237,7 +242,14 @@ class Pending:
                 if positions is not None:
                     self.pos[r] = positions[s]
 
-    def emit(self, segments: np.ndarray) -> dict:
+    def emit(self, segments: np.ndarray, ahead=(), behind=(), keep_frames: bool = False) -> dict:
+        """The window's tables.
+
+        ``ahead`` / ``behind``: the pending windows after it and the emitted ones before
+        it whose frames were kept (``keep_frames``), nearest first; they extend the
+        operating point's integration (``_operating_point``). Without ``keep_frames`` the
+        window's matched frames are released.
+        """
         c = self.table
         self._merge_duplicates()
         keep = c["confirmed"]
@@ -259,16 +271,42 @@ class Pending:
         det["path"] = tables.PATH_COMBINED
         det["significance"], det["level"] = np.nan, -np.inf
         if self.matched is not None:
-            near = dilated(self.matched)
-            det["snr"], det["support"] = along_track(det, near, self.start, self.peaks,
-                                                     self.radius)
-            integrated = integrated_map(near)
-            det["significance"] = significance(integrated, det["snr"], det["x"], det["y"])
-            if self.false_rate > 0:
-                det["level"] = map_threshold(integrated[0], self.false_rate, len(near))
-        self.matched = None         # release the frames
+            det["snr"], det["support"] = along_track(det, self.matched, self.start,
+                                                     self.peaks, self.radius)
+            self._operating_point(det, ahead, behind)
+        if not keep_frames:
+            self.matched = self._dilated_sum = None     # release the frames
         return {"candidates": c, "combined_detections": det, "segments": segments}
 
+
+    def dilated_sum(self) -> np.ndarray:
+        """``fusion.dilated_sum`` of the window's matched frames, computed once."""
+        if self._dilated_sum is None:
+            self._dilated_sum = dilated_sum(self.matched)
+        return self._dilated_sum
+
+    def _operating_point(self, det: np.ndarray, ahead, behind) -> None:
+        """``significance`` and ``level`` of the window's detections on the integrated
+        map of ``OPERATING_WINDOWS`` windows: this one and the next ones a chain from it
+        spans, or the ones before it at the sequence's end (those that do not overlap
+        it): the 36 frames the verification summed, so a target integrates as it did
+        there while residue that persists keeps its spread (``irdetect.operating``)."""
+        blocks = [self]
+        for side in (ahead, behind):
+            for p in side:
+                if len(blocks) == OPERATING_WINDOWS or p.matched is None:
+                    break
+                first, last = min(b.start for b in blocks), max(b.start + len(b.matched)
+                                                                 for b in blocks)
+                if p.start >= last or p.start + len(p.matched) <= first:
+                    blocks.append(p)
+        frames = sum(len(p.matched) for p in blocks)
+        integrated = integrated_map(sum(p.dilated_sum() for p in blocks) / frames)
+        mid = self.start + (len(self.matched) - 1) / 2.0
+        along = track_mean(det, [(p.start, p.matched) for p in blocks], mid)
+        det["significance"] = significance(integrated, along, det["x"], det["y"])
+        if self.false_rate > 0:
+            det["level"] = map_threshold(integrated[0], self.false_rate, frames)
 
     def _merge_duplicates(self) -> None:
         """One target split into two fused points, each confirmed by a different segment

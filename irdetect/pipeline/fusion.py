@@ -38,14 +38,60 @@ _NEIGHBOURS = np.ones((3, 3), np.uint8)
 MERGE_PX = 6.0
 
 
-def dilated(matched: np.ndarray) -> np.ndarray:
-    """Each of a window's matched frames (L, H, W) dilated by 3 x 3: the largest value of
-    the 3 x 3 pixels about each pixel, so a track 1 px off the target's peak (the combined
-    frame's position error) still reads its SNR. float32 (L, H, W)."""
-    return np.stack([cv2.dilate(f, _NEIGHBOURS) for f in matched])
+def dilated_sum(matched: np.ndarray) -> np.ndarray:
+    """The sum over a window's matched frames (L, H, W) of each frame dilated by 3 x 3
+    (the largest value of the 3 x 3 pixels about each pixel: what ``track_mean`` reads
+    along a track at rest). float32 (H, W)."""
+    out = np.zeros(matched.shape[1:], np.float32)
+    for f in matched:                    # a loop over the window's frames
+        out += cv2.dilate(f, _NEIGHBOURS)
+    return out
 
 
-def along_track(det: np.ndarray, near, start: int, peaks, radius: float):
+def _track_xy(det: np.ndarray, times: np.ndarray, mid: float):
+    """Positions (x, y px) of detections' straight tracks at frames ``times`` (N, F)."""
+    t = np.asarray(times, np.float64) - mid
+    vx, vy = np.nan_to_num(det["vx"]), np.nan_to_num(det["vy"])
+    return det["x"][:, None] + vx[:, None] * t[None], det["y"][:, None] + vy[:, None] * t[None]
+
+
+def track_mean(det: np.ndarray, blocks, mid: float) -> np.ndarray:
+    """Mean along detections' tracks of the largest matched value in the 3 x 3 pixels
+    about the track's position in each frame (a track 1 px off the target's peak, the
+    combined frame's position error, still reads its SNR).
+
+    Parameters
+    ----------
+    det : structured ndarray
+        ``tables.DETECTION`` rows: position (x, y px) at frame ``mid``, image velocity
+        (vx, vy px/frame; NaN taken as 0).
+    blocks : sequence of (int, ndarray of shape (L_j, H, W))
+        (first frame, matched standardised frames) of the windows to read.
+    mid : float
+        The frame the positions are at.
+
+    Returns
+    -------
+    ndarray of shape (N,)
+    """
+    total, count = np.zeros(len(det)), 0
+    for start, matched in blocks:        # a loop over a few windows
+        L, h, w = matched.shape
+        x, y = _track_xy(det, start + np.arange(L), mid)                  # (N, L)
+        col = np.rint(x).astype(np.intp)
+        row = np.rint(y).astype(np.intp)
+        frame = np.arange(L)[None]
+        best = np.full(x.shape, -np.inf, np.float32)
+        for dy in (-1, 0, 1):            # the 3 x 3 neighbourhood, clipped to the frame
+            for dx in (-1, 0, 1):
+                v = matched[frame, np.clip(row + dy, 0, h - 1), np.clip(col + dx, 0, w - 1)]
+                np.maximum(best, v, out=best)
+        total += best.sum(axis=1, dtype=np.float64)
+        count += L
+    return total / max(count, 1)
+
+
+def along_track(det: np.ndarray, matched, start: int, peaks, radius: float):
     """Local SNR per frame and per-frame support of detections along their tracks.
 
     Parameters
@@ -53,9 +99,8 @@ def along_track(det: np.ndarray, near, start: int, peaks, radius: float):
     det : structured ndarray
         ``tables.DETECTION`` rows of one window: position (x, y px) at the window's
         middle frame, image velocity (vx, vy px/frame; NaN taken as 0).
-    near : ndarray of shape (L, H, W)
-        The window's matched, standardised frames (frames start .. start + L - 1),
-        ``dilated``.
+    matched : ndarray of shape (L, H, W)
+        The window's matched, standardised frames (frames start .. start + L - 1).
     start : int
         The window's first frame.
     peaks : structured ndarray or None
@@ -66,22 +111,17 @@ def along_track(det: np.ndarray, near, start: int, peaks, radius: float):
     Returns
     -------
     snr, support : ndarray of shape (N,)
-        Mean over the L frames of the largest matched value in the 3 x 3 pixels about
-        the track's position, and the share of the L frames with a peak within
-        ``radius``.
+        ``track_mean`` over the window's L frames, and the share of the L frames with a
+        peak within ``radius``.
     """
-    n, (L, h, w) = len(det), near.shape
+    n, L = len(det), len(matched)
     if not n:
         return np.zeros(0), np.zeros(0)
-    t = np.arange(L) - (L - 1) / 2.0
-    vx, vy = np.nan_to_num(det["vx"]), np.nan_to_num(det["vy"])
-    x = det["x"][:, None] + vx[:, None] * t[None]                          # (N, L)
-    y = det["y"][:, None] + vy[:, None] * t[None]
-    col = np.clip(np.rint(x), 0, w - 1).astype(np.intp)
-    row = np.clip(np.rint(y), 0, h - 1).astype(np.intp)
-    snr = near[np.arange(L)[None], row, col].mean(axis=1)
+    mid = start + (L - 1) / 2.0
+    snr = track_mean(det, [(start, matched)], mid)
     if peaks is None:
         return snr, np.full(n, np.nan)
+    x, y = _track_xy(det, start + np.arange(L), mid)
     hit = np.zeros((n, L), bool)
     for i in range(L):                   # a loop over the window's frames
         p = peaks[peaks["frame"] == start + i]
@@ -93,51 +133,8 @@ def along_track(det: np.ndarray, near, start: int, peaks, radius: float):
 
 
 #: a per-frame peak within this many position sigmas of a combined-frame detection's track
-#: supports it (the per-frame path's gate); the operating point's hysteresis gate too
+#: supports it (the per-frame path's gate)
 SUPPORT_GATE = 3.0
-
-#: a combined-frame detection below its window's level is kept when it continues a
-#: detection at or above the level of a window up to this many windows away (hysteresis)
-REACH = 2
-
-
-def operating_point(combined: np.ndarray, gate: float) -> np.ndarray:
-    """Which combined-frame detections the operating point keeps (``irdetect.operating``).
-
-    A detection is kept when its ``significance`` reaches its window's ``level`` (-inf:
-    no operating point), or when it lies within ``gate`` px of the position of such
-    a detection of a window up to ``REACH`` windows away, moved by that one's velocity to
-    its time: the threshold's hysteresis, so a target faint for a window (a camera-held
-    target the temporal background half absorbs) stays with its track, while clutter that
-    never reaches the level starts none.
-
-    Parameters
-    ----------
-    combined : structured ndarray
-        ``tables.DETECTION`` rows of every window (x, y px at the window's middle frame;
-        vx, vy px/frame, NaN taken as 0).
-    gate : float
-        px.
-
-    Returns
-    -------
-    ndarray of bool of shape (N,)
-    """
-    strong = ~(combined["significance"] < combined["level"])
-    weak = np.flatnonzero(~strong)
-    keep = strong.copy()
-    s = np.flatnonzero(strong)
-    if not len(weak) or not len(s):
-        return keep
-    t = 0.5 * (combined["frame_start"] + combined["frame_end"])
-    near = np.abs(combined["combined_frame"][weak, None] - combined["combined_frame"][None, s])
-    dt = t[weak, None] - t[None, s]                                       # (weak, strong)
-    px = combined["x"][s] + np.nan_to_num(combined["vx"][s]) * dt
-    py = combined["y"][s] + np.nan_to_num(combined["vy"][s]) * dt
-    d = np.hypot(px - combined["x"][weak, None], py - combined["y"][weak, None])
-    keep[weak] = ((near >= 1) & (near <= REACH) & (d <= gate)).any(axis=1)
-    return keep
-
 
 def fuse_paths(combined: np.ndarray, frame_tracks: np.ndarray) -> np.ndarray:
     """One detection per target per window from both paths (module notes).
@@ -312,7 +309,8 @@ def finish(combined: np.ndarray, peaks: np.ndarray, camera: np.ndarray,
                           confirm_m=fc.confirm_m, confirm_n=fc.confirm_n)
     else:
         ft = tables.empty(tables.FRAME_TRACK)
-    combined = combined[operating_point(combined, SUPPORT_GATE * fc.sigma)]
+    # the combined-frame path's operating point (``irdetect.operating``; -inf: none)
+    combined = combined[~(combined["significance"] < combined["level"])]
     detections = fuse_paths(combined, ft) if fc.enabled else combined
     tracks = initiate_tracks(detections, config, camera)
     tracks["path"] = track_paths(tracks, detections, camera,
