@@ -77,7 +77,7 @@ def tail_threshold(clutter, n_frames: int, rate: float, floor: float) -> float:
 
 #: the tail of a window's integrated map is fitted to its largest local maxima: this
 #: share of them, and at least MIN_TAIL (a target is a handful among thousands)
-TAIL_SHARE = 0.01
+TAIL_SHARE = 0.005
 MIN_TAIL = 10
 #: side (px) of the neighbourhood of which a local maximum of the map is the largest
 MAXIMUM_PX = 5

@@ -73,6 +73,8 @@ MIN_TRACK = 12
 PATH_SHARE = 0.8
 #: section 3: (label, {stage: {field: value}}) applied on top of the configuration run
 VARIANTS = (
+    ("no operating point (operating.false_rate 0: every verified chain, the design before)",
+     {"operating": {"false_rate": 0.0}}),
     ("the combined-frame path alone (frame.enabled false: the design before issue 26)",
      {"frame": {"enabled": False}}),
     ("per-frame CFAR at 0.1 false peaks per frame (frame.false_rate)",
@@ -375,6 +377,14 @@ CHOSEN = (
      (0.7, 1.0, 1.5), 1.0),
     ("per-frame clutter tracks per frame (frame.false_tracks)", "config",
      "frame.false_tracks", (0.0003, 0.001, 0.01), 0.001),
+    ("operating point's clutter maxima per frame (operating.false_rate)", "config",
+     "operating.false_rate", (0.03, 0.1, 0.3), 0.1),
+    ("windows the operating point integrates (pipeline.combined.OPERATING_WINDOWS)",
+     "constant", "irdetect.pipeline.combined:OPERATING_WINDOWS", (1, 3), 3),
+    ("share of maxima its tail is fitted to (operating.TAIL_SHARE)", "constant",
+     "irdetect.operating:TAIL_SHARE", (0.005, 0.01, 0.02), 0.01),
+    ("px about a detection the map's peak is read in (operating.NEAR_PX)", "constant",
+     "irdetect.operating:NEAR_PX", (1, 3), 3),
 )
 
 
