@@ -382,7 +382,7 @@ CHOSEN = (
     ("windows the operating point integrates (pipeline.combined.OPERATING_WINDOWS)",
      "constant", "irdetect.pipeline.combined:OPERATING_WINDOWS", (1, 3), 3),
     ("share of maxima its tail is fitted to (operating.TAIL_SHARE)", "constant",
-     "irdetect.operating:TAIL_SHARE", (0.005, 0.01, 0.02), 0.01),
+     "irdetect.operating:TAIL_SHARE", (0.005, 0.01, 0.02), 0.005),
     ("px about a detection the map's peak is read in (operating.NEAR_PX)", "constant",
      "irdetect.operating:NEAR_PX", (1, 3), 3),
 )
