@@ -91,7 +91,8 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     false_tracks : float
         Clutter tracks per frame the confirmation allows (``irdetect.track.confirm``):
         a tentative track must move against the scene, pass the scans clutter test with
-        the local density and reach the score this sequence's clutter reaches this often;
+        the local density and reach the score this sequence's clutter that moves as far
+        reaches this often;
         0: the M-of-N rule alone (``confirm_hits`` in ``confirm_window``).
     sigma : float
         Position error of a region (px) in the confirmation's tests.
