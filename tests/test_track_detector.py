@@ -1,10 +1,14 @@
 """The tracker's regions from the per-frame detector and its confirmation test (issue 28)."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from irdetect.metrics.mot import clear_mot
+from irdetect.operating import tail_threshold
 from irdetect.track import track
+from irdetect.track.confirm import ClutterTest, tail_share
 from irdetect.track.detector import peak_regions
 
 
@@ -145,3 +149,42 @@ def test_target_jumping_out_of_its_gate_keeps_its_id():
     r = clear_mot(truth, points, gate=3.0)
     assert len(tracks) == 1 and r["id_switches"] == 0 and r["mota"] > 0.8
     assert len(np.unique(points["track_id"])) == 1
+
+
+def _clutter_sample(rng, n, score_scale, moved):
+    """n clutter tracks' (score, displacement): scores 5 + an exponential tail."""
+    return np.column_stack([5.0 + rng.exponential(score_scale, n), moved(n)])
+
+
+def test_clear_mover_is_not_held_to_the_score_of_bright_static_clutter():
+    rng = np.random.default_rng(3)
+    # bright structure that stays put (displacements < 1 unit, scores up to ~50) sets a
+    # high score level; a track moving 8 units meets only the clutter that moves as far
+    test = ClutterTest((256, 256), false_tracks=0.001, score_floor=4.2, learn=0)
+    test.n_frames = 40
+    sample = _clutter_sample(rng, 40, 10.0, lambda n: rng.uniform(0.0, 0.9, n))
+    static_level = tail_threshold(sample[:, 0], 40, 0.001, 4.2)
+    assert static_level > 30.0
+    assert test.level(sample, 8.0) < 10.0                 # the target's 30 passes
+    assert test.level(sample, 0.5) == pytest.approx(static_level)
+
+
+def test_marginal_mover_meets_the_clutter_that_moves_as_far():
+    rng = np.random.default_rng(4)
+    # clutter that drifts (1-3 units) with scores ~5-8: a track of score 7 moving
+    # 1.5 units is as good as that clutter and is not confirmed
+    test = ClutterTest((256, 256), false_tracks=0.001, score_floor=4.2, learn=0)
+    test.n_frames = 40
+    sample = _clutter_sample(rng, 40, 1.0, lambda n: rng.uniform(1.0, 3.0, n))
+    track = SimpleNamespace(moved=1.5, E=0.0, score=7.0)
+    assert test.level(sample, 1.5) > 7.0
+    assert not test.passes(track, sample)
+    assert test.passes(SimpleNamespace(moved=1.5, E=0.0, score=20.0), sample)
+    assert not test.passes(track, None)                  # before ``learn`` frames
+
+
+def test_tail_share_is_one_to_the_median_then_an_exponential_tail():
+    v = np.arange(1.0, 21.0)                              # median 10.5, excess mean 5
+    assert tail_share(v, 3.0) == 1.0
+    assert tail_share(v, 10.5 + 5.0) == pytest.approx(0.5 * np.exp(-1.0))
+    assert tail_share([0.1, 0.2, 0.3], 5.0) == pytest.approx(1 / 3)  # too few: empirical

@@ -24,13 +24,21 @@ A tentative track (``irdetect.track.tracker``) is confirmed only when
    ``false_tracks`` / ``window`` (``window`` = the frames a tentative track is tested on):
    a rate per frame;
 3. its **score**, the median local SNR (the regions' contrast) of its hits, reaches the
-   score clutter of this sequence reaches ``false_tracks`` times per frame
-   (``irdetect.operating.tail_threshold``, as the per-frame path of ``irdetect process``
-   does), fitted to the scores of the tentative tracks that do not move (clutter by test
-   1: those that ended and those alive), and at least the detector's CFAR level. Nothing
-   is confirmed in the first ``learn`` frames, while that sample is too young to say how
-   the sequence's clutter scores (a track's points from its first hit on are still
-   released once it is confirmed).
+   score that clutter of this sequence which moves as far reaches ``false_tracks`` times
+   per frame, at least the detector's CFAR level. The clutter sample is every tentative
+   track of ``min_hits`` hits or more that ended unconfirmed and every one alive (the one
+   tested among them: it may be clutter too), each with its score s and displacement m (test 1's units). Taking s and m
+   of clutter as independent, clutter tracks as good in both come at the rate of those
+   scoring s or more times the share F(m) of the sample that moves m or more: the level is
+   ``irdetect.operating.tail_threshold`` of the scores at ``false_tracks`` / F(m), F the
+   exponential tail of the sample's displacements above their median (``tail_share``).
+   Bright structure that stays put (m < 1) then no longer sets the level a clearly moving
+   track must reach (istd640-seq3-237: static clutter scoring up to 49 put the level at
+   106-150 over a target of 30 moving 8 units in 11 frames), while a track that moves no
+   farther than the sequence's clutter meets the scores of that clutter at
+   ``false_tracks`` per frame, as before. Nothing is confirmed in the first ``learn``
+   frames, while that sample is too young to say how the sequence's clutter scores (a
+   track's points from its first hit on are still released once it is confirmed).
 
 Coordinates: x = column, y = row, px; time in frames.
 """
@@ -42,7 +50,7 @@ import math
 import numpy as np
 
 from irdetect.initiate.clutter import LEVELS, chain_expectation, hypotheses
-from irdetect.operating import tail_threshold
+from irdetect.operating import MIN_SAMPLE, tail_threshold
 
 #: the gate (sigmas) of the clutter test and of the motion test (the scans' default)
 GATE = 3.0
@@ -89,7 +97,8 @@ class ClutterTest:
         self.radius, self.floor = float(radius), float(floor)
         self.false_tracks = float(false_tracks)
         self.score_floor = float(score_floor)
-        self.static = np.zeros(0)           # scores of ended tentative tracks that stayed put
+        # (score, displacement) of the tentative tracks that ended unconfirmed
+        self.ended_sample = np.zeros((0, 2))
         self.misses = int(misses)
         self.learn = int(learn)
 
@@ -154,24 +163,88 @@ class ClutterTest:
                                                     track.clutter)
         track.score = float(np.median([m[5] for m in track.meas]))
 
-    def level(self, tracks, n_frames: int, min_hits: int) -> float:
-        """The score clutter of this sequence reaches ``false_tracks`` times per frame
-        (``irdetect.operating.tail_threshold``): fitted to the scores of the tentative
-        tracks of at least ``min_hits`` hits that do not move (clutter by test 1: those
-        that ended, and those alive), floored at the detector's level."""
+    def sample(self, tracks, n_frames: int, min_hits: int) -> np.ndarray | None:
+        """The clutter sample of test 3 at this frame (module notes).
+
+        Parameters
+        ----------
+        tracks : list of irdetect.track.tracker.Track
+            The live tracks (their ``score`` and ``moved`` measured).
+        n_frames : int
+            Frames seen so far.
+        min_hits : int
+            The hits a tentative track needs to count.
+
+        Returns
+        -------
+        ndarray of shape (N, 2) or None
+            Score and displacement (test 1's units) of the tracks that ended unconfirmed
+            and of the live tentative ones; None before ``learn`` frames
+            (too early to know this sequence's clutter).
+        """
         if n_frames < self.learn:
-            return math.inf         # too early to know this sequence's clutter
-        live = [t.score for t in tracks if not t.confirmed and len(t.meas) >= min_hits
-                and t.moved < 1.0]
-        return tail_threshold(np.concatenate([self.static, live]), n_frames,
-                              self.false_tracks, self.score_floor)
+            return None
+        live = [(t.score, t.moved) for t in tracks if not t.confirmed
+                and len(t.meas) >= min_hits]
+        self.n_frames = int(n_frames)
+        return np.concatenate([self.ended_sample, np.reshape(live, (-1, 2))])
+
+    def level(self, sample: np.ndarray | None, moved: float) -> float:
+        """The score a track that moved ``moved`` (test 1's units) must reach: the score
+        the clutter of ``sample`` (``ClutterTest.sample``) that moves as far reaches
+        ``false_tracks`` times per frame, floored at the detector's level; inf with no
+        sample yet."""
+        if sample is None:
+            return math.inf
+        if not len(sample):
+            return self.score_floor
+        share = tail_share(sample[:, 1], moved)
+        return tail_threshold(sample[:, 0], self.n_frames, self.false_tracks / share,
+                              self.score_floor)
 
     def ended(self, track, min_hits: int) -> None:
-        """A tentative track that ends unconfirmed: when it did not move, its score joins
-        the clutter sample."""
-        if len(track.meas) >= min_hits and getattr(track, "moved", 1.0) < 1.0:
-            self.static = np.append(self.static, track.score)
+        """A tentative track that ends unconfirmed joins the clutter sample (score and
+        displacement)."""
+        if len(track.meas) >= min_hits:
+            row = [[track.score, getattr(track, "moved", 0.0)]]
+            self.ended_sample = np.concatenate([self.ended_sample, row])
 
-    def passes(self, track, level: float) -> bool:
-        """Whether a measured tentative track passes the three tests."""
-        return track.moved >= 1.0 and track.E <= self.rate and track.score >= level
+    def passes(self, track, sample: np.ndarray | None) -> bool:
+        """Whether a measured tentative track passes the three tests (``sample``: this
+        frame's ``ClutterTest.sample``)."""
+        return (track.moved >= 1.0 and track.E <= self.rate
+                and track.score >= self.level(sample, track.moved))
+
+
+def tail_share(values, x: float) -> float:
+    """The share of a sample at or above ``x``, its tail above the median taken as
+    exponential.
+
+    Parameters
+    ----------
+    values : array_like of shape (N,)
+        The sample (N >= 1).
+    x : float
+        The value.
+
+    Returns
+    -------
+    float
+        In (0, 1]: 1 at or below the median; above it (n_u / N) exp(-(x - u) / e), u the
+        median, n_u the values above it and e their mean excess over it (the tail model
+        of ``irdetect.operating.tail_threshold``); the empirical share, at least 1 / N,
+        when fewer than ``MIN_SAMPLE`` values lie above the median.
+
+    Examples
+    --------
+    >>> round(tail_share([0.1, 0.2, 0.3, 0.4, 0.5], 0.2), 3)
+    1.0
+    """
+    v = np.asarray(values, np.float64).ravel()
+    u = float(np.median(v))
+    if x <= u:
+        return 1.0
+    excess = v[v > u] - u
+    if excess.size < MIN_SAMPLE:
+        return max(int((v >= x).sum()), 1) / v.size
+    return max(excess.size / v.size * math.exp(-(x - u) / float(excess.mean())), 1e-300)

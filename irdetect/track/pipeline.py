@@ -83,15 +83,16 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
         The detector's CFAR level: white-noise peaks per frame (``irdetect.peaks``).
     psf : float
         Sigma (px) of the detector's matched filter (1 px, issue 17's ``smooth``;
-        ``process``'s ``combine.dp_smooth`` is 0.6 px, which puts 5 of the 17 real folders
-        at the goal against 8, leave-one-out in docs/results/tracking.md).
+        ``process``'s ``combine.dp_smooth`` is 0.6 px, which puts 6 of the 17 real folders
+        at the goal against 9, leave-one-out in docs/results/tracking.md).
     fraction : float
         A detector region holds the pixels around its peak at or above this fraction of
         its highest value (``irdetect.track.detector.peak_regions``).
     false_tracks : float
         Clutter tracks per frame the confirmation allows (``irdetect.track.confirm``):
         a tentative track must move against the scene, pass the scans clutter test with
-        the local density and reach the score this sequence's clutter reaches this often;
+        the local density and reach the score this sequence's clutter that moves as far
+        reaches this often;
         0: the M-of-N rule alone (``confirm_hits`` in ``confirm_window``).
     sigma : float
         Position error of a region (px) in the confirmation's tests.

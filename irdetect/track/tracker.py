@@ -247,20 +247,20 @@ class _TrackerBase:
     def _manage(self, frame: int, out: list) -> None:
         keep = []
         test = self.confirm
-        level = None
+        sample = None
         if test is not None:
-            # the tentative tracks' statistics, then the score clutter reaches this often
+            # the tentative tracks' statistics, then this frame's clutter sample
             for t in self.tracks:
                 if not t.confirmed and not t.dead:
                     test.measure(t, frame)
-            level = test.level(self.tracks, frame + 1, self.confirm_hits)
+            sample = test.sample(self.tracks, frame + 1, self.confirm_hits)
         for t in self.tracks:
             age = frame - t.born + 1
             if t.dead:
                 self._end(t)
                 continue
             if not t.confirmed:
-                if t.hits >= self.confirm_hits and (test is None or test.passes(t, level)):
+                if t.hits >= self.confirm_hits and (test is None or test.passes(t, sample)):
                     t.confirmed = True
                     if test is not None:
                         self._succeed(t, frame)
