@@ -161,12 +161,11 @@ def test_clear_mover_is_not_held_to_the_score_of_bright_static_clutter():
     # bright structure that stays put (displacements < 1 unit, scores up to ~50) sets a
     # high score level; a track moving 8 units meets only the clutter that moves as far
     test = ClutterTest((256, 256), false_tracks=0.001, score_floor=4.2, learn=0)
-    test.n_frames = 40
     sample = _clutter_sample(rng, 40, 10.0, lambda n: rng.uniform(0.0, 0.9, n))
     static_level = tail_threshold(sample[:, 0], 40, 0.001, 4.2)
     assert static_level > 30.0
-    assert test.level(sample, 8.0) < 10.0                 # the target's 30 passes
-    assert test.level(sample, 0.5) == pytest.approx(static_level)
+    assert test.level(sample, 8.0, 40) < 10.0                 # the target's 30 passes
+    assert test.level(sample, 0.5, 40) == pytest.approx(static_level)
 
 
 def test_marginal_mover_meets_the_clutter_that_moves_as_far():
@@ -174,13 +173,12 @@ def test_marginal_mover_meets_the_clutter_that_moves_as_far():
     # clutter that drifts (1-3 units) with scores ~5-8: a track of score 7 moving
     # 1.5 units is as good as that clutter and is not confirmed
     test = ClutterTest((256, 256), false_tracks=0.001, score_floor=4.2, learn=0)
-    test.n_frames = 40
     sample = _clutter_sample(rng, 40, 1.0, lambda n: rng.uniform(1.0, 3.0, n))
     track = SimpleNamespace(moved=1.5, E=0.0, score=7.0)
-    assert test.level(sample, 1.5) > 7.0
-    assert not test.passes(track, sample)
-    assert test.passes(SimpleNamespace(moved=1.5, E=0.0, score=20.0), sample)
-    assert not test.passes(track, None)                  # before ``learn`` frames
+    assert test.level(sample, 1.5, 40) > 7.0
+    assert not test.passes(track, sample, 40)
+    assert test.passes(SimpleNamespace(moved=1.5, E=0.0, score=20.0), sample, 40)
+    assert not test.passes(track, None, 40)                  # before ``learn`` frames
 
 
 def test_tail_share_is_one_to_the_median_then_an_exponential_tail():

@@ -29,6 +29,7 @@ from irdetect import kernels, tables
 from irdetect.combine import frames_needed, window_starts
 from irdetect.config import ProcessConfig, to_json
 from irdetect.errors import InputError, refused_settings
+from irdetect.pipeline import combined
 from irdetect.pipeline.combined import Pending, StageParams, correlate_windows, front
 from irdetect.pipeline.fusion import SUPPORT_GATE, finish, initiate_tracks
 from irdetect.pipeline.reader import Reader
@@ -210,14 +211,16 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
         done = pending.popleft()
         return with_camera(emit(done, segments), done.start + cc.length, done.peaks)
 
-    emitted: deque = deque(maxlen=N_CORRELATE - 1)   # the last windows whose frames stay
+    # the operating point's windows (``combined.OPERATING_WINDOWS``, read per run)
+    beside = combined.OPERATING_WINDOWS
+    emitted: deque = deque(maxlen=max(1, beside - 1))  # the last windows whose frames stay
 
     def emit(done: Pending, segments) -> dict:
         """``done.emit`` with the windows beside it; the last windows of the sequence keep
         their frames for the ones after them, which have fewer windows ahead."""
         k = int(np.searchsorted(starts, done.start))     # done's window index
         chunk = done.emit(segments, pending, reversed(emitted),
-                          keep_frames=k >= len(starts) - N_CORRELATE)
+                          keep_frames=k >= len(starts) - beside)
         emitted.append(done)
         return chunk
 

@@ -199,7 +199,8 @@ def evidence_of(pending, cc) -> Evidence | None:
                     leads=DP_LEADS if dp else (0.0,))
 
 
-#: the windows the operating point integrates over: a chain's (``N_CORRELATE``)
+#: the windows the operating point integrates over: a chain's (the pipeline's
+#: ``N_CORRELATE``; the pipeline keeps the last windows' frames for as many)
 OPERATING_WINDOWS = 3
 
 

@@ -186,20 +186,19 @@ class ClutterTest:
             return None
         live = [(t.score, t.moved) for t in tracks if not t.confirmed
                 and len(t.meas) >= min_hits]
-        self.n_frames = int(n_frames)
         return np.concatenate([self.ended_sample, np.reshape(live, (-1, 2))])
 
-    def level(self, sample: np.ndarray | None, moved: float) -> float:
-        """The score a track that moved ``moved`` (test 1's units) must reach: the score
-        the clutter of ``sample`` (``ClutterTest.sample``) that moves as far reaches
-        ``false_tracks`` times per frame, floored at the detector's level; inf with no
-        sample yet."""
+    def level(self, sample: np.ndarray | None, moved: float, n_frames: int) -> float:
+        """The score a track that moved ``moved`` (test 1's units) must reach after
+        ``n_frames`` frames: the score the clutter of ``sample`` (``ClutterTest.sample``)
+        that moves as far reaches ``false_tracks`` times per frame, floored at the
+        detector's level; inf with no sample yet."""
         if sample is None:
             return math.inf
         if not len(sample):
             return self.score_floor
         share = tail_share(sample[:, 1], moved)
-        return tail_threshold(sample[:, 0], self.n_frames, self.false_tracks / share,
+        return tail_threshold(sample[:, 0], n_frames, self.false_tracks / share,
                               self.score_floor)
 
     def ended(self, track, min_hits: int) -> None:
@@ -209,11 +208,11 @@ class ClutterTest:
             row = [[track.score, getattr(track, "moved", 0.0)]]
             self.ended_sample = np.concatenate([self.ended_sample, row])
 
-    def passes(self, track, sample: np.ndarray | None) -> bool:
-        """Whether a measured tentative track passes the three tests (``sample``: this
-        frame's ``ClutterTest.sample``)."""
+    def passes(self, track, sample: np.ndarray | None, n_frames: int) -> bool:
+        """Whether a measured tentative track passes the three tests after ``n_frames``
+        frames (``sample``: that frame's ``ClutterTest.sample``)."""
         return (track.moved >= 1.0 and track.E <= self.rate
-                and track.score >= self.level(sample, track.moved))
+                and track.score >= self.level(sample, track.moved, n_frames))
 
 
 def tail_share(values, x: float) -> float:

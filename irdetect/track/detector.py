@@ -44,7 +44,7 @@ from typing import Iterator
 import cv2
 import numpy as np
 
-from irdetect.peaks import frame_level, frame_peaks
+from irdetect.peaks import frame_peaks
 from irdetect.suppress import (camera_moves, future_frames, past_frames,
                                prefer_registered, suppress)
 from irdetect.track.regions import REGION
@@ -247,9 +247,3 @@ def peak_regions(matched: np.ndarray, k: float, *, fraction: float = 0.5,
     out["bx"], out["by"] = stats[ids, cv2.CC_STAT_LEFT], stats[ids, cv2.CC_STAT_TOP]
     out["bw"], out["bh"] = stats[ids, cv2.CC_STAT_WIDTH], stats[ids, cv2.CC_STAT_HEIGHT]
     return out[np.argsort(-out["contrast"], kind="stable")]
-
-
-def detector_level(shape, false_rate: float) -> float:
-    """The CFAR level of the tracker's detector for frames of ``shape`` (H, W) at
-    ``false_rate`` white-noise peaks per frame (``irdetect.peaks.frame_level``)."""
-    return frame_level(shape, false_rate)

@@ -10,8 +10,9 @@ from tqdm import tqdm
 
 from irdetect import tables
 from irdetect.io.sources import FrameSource, check_values
+from irdetect.peaks import frame_level
 from irdetect.track.confirm import ClutterTest
-from irdetect.track.detector import detector_blocks, detector_level, peak_regions
+from irdetect.track.detector import detector_blocks, peak_regions
 from irdetect.track.regions import extract_regions, residual_level
 from irdetect.track.seasky import find_sea_sky_line, sea_sky_band
 from irdetect.track.tracker import FCMPMHTTracker, GNNTracker
@@ -182,7 +183,7 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     if detector:
         if tile < 1 or int(tile) != tile:
             raise ValueError(f"tile must be an int >= 1 with regions = 'detector', got {tile!r}")
-        level = detector_level((h, w), false_rate)      # checks false_rate
+        level = frame_level((h, w), false_rate)         # checks false_rate
         # the detector's grey is a local SNR: its unit is one matched-filter sigma
         grey_levels = grey_scale
     else:

@@ -260,7 +260,8 @@ class _TrackerBase:
                 self._end(t)
                 continue
             if not t.confirmed:
-                if t.hits >= self.confirm_hits and (test is None or test.passes(t, sample)):
+                if t.hits >= self.confirm_hits and (
+                        test is None or test.passes(t, sample, frame + 1)):
                     t.confirmed = True
                     if test is not None:
                         self._succeed(t, frame)
