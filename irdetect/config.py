@@ -149,6 +149,7 @@ class InitiateConfig:
     rho_step: float = 2.0
     tile: float = 0.0
     vote_fraction: float = 0.6
+    vote_band: float = 1.0
     parallel_fraction: float = 0.8
     q1: float = 0.25
     q2: float = 0.65

@@ -138,9 +138,10 @@ def curve_rho(x, y, grid: HoughGrid) -> np.ndarray:
 
 
 def hough_transform(x, y, *, grid: HoughGrid, weights=None, groups=None,
-                    n_groups: int = 1) -> np.ndarray:
+                    n_groups: int = 1, band=0.0) -> np.ndarray:
     """Standard (binary-vote) Hough accumulator: each point adds 1 (or its weight) to the
-    cell its curve crosses in every theta column.
+    cell its curve crosses in every theta column, and with a ``band`` to every cell of
+    that column within ``band`` of its rho (once each: a cell's total still counts points).
 
     Parameters
     ----------
@@ -152,6 +153,10 @@ def hough_transform(x, y, *, grid: HoughGrid, weights=None, groups=None,
         Vote per point (default 1).
     groups : array_like of int, shape (N,), optional
         Accumulator index of every point (0 .. n_groups-1), e.g. its spatial tile.
+    band : float or array_like of shape (N,)
+        Half-width in rho (the points' units) of each point's vote (0: the cell its curve
+        crosses; the rho error of the point, so that points within their errors of one
+        line share a cell wherever the cell edges fall).
 
     Returns
     -------
@@ -165,18 +170,28 @@ def hough_transform(x, y, *, grid: HoughGrid, weights=None, groups=None,
         raise ValueError("weights and groups must have one entry per point")
     if g.size and (g.min() < 0 or g.max() >= n_groups):
         raise ValueError(f"groups must lie in [0, {n_groups}), got [{g.min()}, {g.max()}]")
-    return _hough_kernel(x, y, w, g, grid, n_groups)
+    b = np.broadcast_to(np.asarray(band, dtype=float), x.shape)
+    if not (np.isfinite(b).all() and (b >= 0).all()):
+        raise ValueError("band must be finite and >= 0")
+    return _hough_kernel(x, y, w, g, grid, n_groups, b)
 
 
-def _hough_kernel(x, y, w, g, grid, n_groups):
+def _hough_kernel(x, y, w, g, grid, n_groups, band):
     size = n_groups * grid.n_rho * grid.n_theta
+    acc = np.zeros(size)
     if x.size == 0:
-        return np.zeros((n_groups,) + grid.shape)
-    j = np.floor((curve_rho(x, y, grid) - grid.rho_min) / grid.drho).astype(np.int64)
-    n = np.broadcast_to(np.arange(grid.n_theta), j.shape)
-    ok = (j >= 0) & (j < grid.n_rho)
-    lin = (g[:, None] * grid.n_rho + j) * grid.n_theta + n
-    acc = np.bincount(lin[ok], weights=np.broadcast_to(w[:, None], j.shape)[ok], minlength=size)
+        return acc.reshape((n_groups,) + grid.shape)
+    r = (curve_rho(x, y, grid) - grid.rho_min) / grid.drho                 # (N, n_theta)
+    half = (band / grid.drho)[:, None]
+    lo = np.floor(r - half).astype(np.int64)
+    hi = np.floor(r + half).astype(np.int64)
+    n = np.arange(grid.n_theta)[None]
+    wt = np.broadcast_to(w[:, None], r.shape)
+    for k in range(int((hi - lo).max()) + 1):        # a loop over the band's few cells
+        j = lo + k
+        ok = (j <= hi) & (j >= 0) & (j < grid.n_rho)
+        lin = (g[:, None] * grid.n_rho + j) * grid.n_theta + n
+        acc += np.bincount(lin[ok], weights=wt[ok], minlength=size)
     return acc.reshape((n_groups,) + grid.shape)
 
 

@@ -106,3 +106,20 @@ def test_parallel_nms_is_exactly_greedy_with_wrap_and_tiles():
         tiled = nms_peaks(accs, size=size, threshold=2.5)
         for g in range(3):
             assert np.array_equal(tiled[tiled[:, 0] == g][:, 1:], _greedy_nms(accs[g], size, 2.5))
+
+
+def test_a_vote_band_joins_points_astride_a_cell_edge_and_counts_each_once():
+    # three points of one line, two of them 0.3 px either side of the rho-cell edge at
+    # rho 10: no cell holds more than two votes without a band, one holds three with it
+    g = hough_grid(rho_max=40, rho_step=2.0, n_theta=8)
+    k = 3
+    xs, ys = zip(*(_on_line(r, g.theta_centres[k], s)
+                   for r, s in ((9.7, -20.0), (10.3, 0.0), (9.8, 20.0))))
+    x, y = np.array(xs), np.array(ys)
+    assert hough_transform(x, y, grid=g)[0][:, k].max() == 2
+    assert hough_transform(x, y, grid=g, band=1.0)[0][:, k].max() == 3
+    # a band over several cells adds one vote per point to each, never two
+    wide = hough_transform(x, y, grid=g, band=5.0)[0]
+    assert wide.max() == 3 and wide[:, k].sum() == 3 * 6
+    with pytest.raises(ValueError, match="band"):
+        hough_transform(x, y, grid=g, band=-1.0)

@@ -12,7 +12,7 @@ from irdetect.metrics.detection import roc, score_detections
 from irdetect.operating import tail_threshold
 from irdetect.peaks import cfar_level, frame_level, frame_peaks
 from irdetect.pipeline import detect_sequence
-from irdetect.pipeline.fusion import fuse_paths
+from irdetect.pipeline.fusion import fuse_paths, initiate_tracks
 from irdetect.pipeline.perframe import frame_tracks
 from irdetect.simulate import simulate
 
@@ -150,7 +150,7 @@ def _ft(x, y, k, score=20.0):
 
 def test_fusion_gives_one_row_per_target_and_says_which_path():
     comb = np.concatenate([_det(50.0, 50.0, 0), _det(100.0, 20.0, 0), _det(53.0, 51.0, 1),
-                           _det(57.0, 51.0, 1)])
+                           _det(75.0, 52.0, 1), _det(57.0, 60.0, 1)])
     ft = np.concatenate([_ft(52.0, 50.0, 0), _ft(150.0, 80.0, 0), _ft(55.0, 51.0, 1)])
     ft_dropped = _ft(10.0, 10.0, 1)
     ft_dropped["kept"] = False
@@ -160,8 +160,11 @@ def test_fusion_gives_one_row_per_target_and_says_which_path():
     assert sorted(w0["path"].tolist()) == [1, 2, 3]
     both = w0[w0["path"] == 3]
     assert both["x"][0] == 52.0 and both["snr"][0] == 20.0
-    # window 1: two combined detections near one per-frame track: one pairs, one stays
+    # window 1: three combined detections near one per-frame track (5 px/frame): one
+    # pairs, one 20 px along its path is a piece of its streak (dropped), one 9 px off
+    # the path stays
     assert sorted(w1["path"].tolist()) == [1, 3] and len(w1) == 2
+    assert w1[w1["path"] == 1]["y"][0] == 60.0
     assert 10.0 not in out["x"]                          # a track not kept adds nothing
     # the combined-frame path alone: its rows unchanged
     assert fuse_paths(comb, tables.empty(tables.FRAME_TRACK)).tobytes() == comb.tobytes()
@@ -225,3 +228,27 @@ def test_results_say_the_path_of_every_detection_and_track(tmp_path):
     assert set(np.unique(r["detections"]["path"])) <= {1, 2, 3}
     assert (r["tracks"]["path"] > 0).all() and len(r["tracks"]) >= 2
     assert np.isfinite(r["detections"]["snr"]).all()
+
+
+def _windows(x, y):
+    k = np.arange(len(x))
+    return tables.from_columns(tables.DETECTION, x=np.asarray(x, float),
+                               y=np.asarray(y, float), frame_start=12 * k,
+                               frame_end=12 * k + 11, combined_frame=k)
+
+
+def test_a_turning_target_is_one_track_and_two_crossing_targets_are_two():
+    # 3 px/frame on an arc turning 10 degrees per combined frame: no line holds all 5
+    # detections; two segments of 3 that share the middle one are one target
+    a = np.radians(10.0) * np.arange(5)
+    r = 36.0 / np.radians(10.0)
+    turning = _windows(100 + r * np.sin(a), 300 - r * (1 - np.cos(a)))
+    tracks = initiate_tracks(turning, ProcessConfig())
+    assert len(tracks) == 1 and tracks["n_points"][0] == 3
+    # two straight targets crossing in window 2 (their detections there 1 px apart)
+    k = np.arange(5.0)
+    crossing = np.concatenate([_windows(100 + 36 * k, 200 + 0 * k),
+                               _windows(172 + 0 * k + 0.5, 128 + 36 * k + 1.0)])
+    tracks = initiate_tracks(crossing[np.argsort(crossing["combined_frame"], kind="stable")],
+                             ProcessConfig())
+    assert len(tracks) == 2 and set(tracks["n_points"]) == {5}

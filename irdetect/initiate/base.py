@@ -18,7 +18,7 @@ METHODS = ("hough-sc", "hough", "nms", "opencv", "parallel-hough", "fuzzy-parall
 
 #: Defaults of every initiation parameter (``InitiateConfig`` mirrors them).
 DEFAULTS = dict(
-    method="hough-sc", n_theta=90, rho_step=2.0, tile=0.0, vote_fraction=0.6,
+    method="hough-sc", n_theta=90, rho_step=2.0, tile=0.0, vote_fraction=0.6, vote_band=0.0,
     parallel_fraction=0.8, q1=0.25, q2=0.65, sigma=1.5, sigma_range=0.0, sigma_azimuth=0.0,
     radius_rho=3.0, radius_theta=4.0, squash=1.25, accept_ratio=0.5, reject_ratio=0.15,
     merge_peaks=False, nms_size=5, verify=True, gate=3.0, v_min=0.0, v_max=0.0,
@@ -51,7 +51,8 @@ def check_params(params: dict) -> dict:
     for name in positive:
         if not (isinstance(p[name], (int, float)) and math.isfinite(p[name]) and p[name] > 0):
             raise ValueError(f"{name} must be a positive number, got {p[name]!r}")
-    for name in ("tile", "sigma_range", "sigma_azimuth", "v_min", "v_max", "false_tracks"):
+    for name in ("tile", "sigma_range", "sigma_azimuth", "v_min", "v_max", "false_tracks",
+                 "vote_band"):
         if not (math.isfinite(p[name]) and p[name] >= 0):
             raise ValueError(f"{name} must be >= 0, got {p[name]!r}")
     for name in ("vote_fraction", "parallel_fraction", "q1", "q2", "min_hits",

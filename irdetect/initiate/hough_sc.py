@@ -55,8 +55,11 @@ def initiate(points, *, params):
     win = Window.from_points(points, params)
     if not can_pass(win, params):            # the clutter test would reject every track
         return finish(win, [], None, None, None, None, params)
-    acc = hough_transform(win.lx, win.ly, grid=win.grid, groups=win.grp, n_groups=win.n_groups)
+    acc = hough_transform(win.lx, win.ly, grid=win.grid, groups=win.grp, n_groups=win.n_groups,
+                          band=params["vote_band"] * win.sigma[win.pt])
     thr = max(1.0, math.ceil(params["vote_fraction"] * win.n_scans - 1e-9))
+    # a track needs as many scans as a cell needs votes (its CV check drops outliers)
+    params = {**params, "min_hits": max(params["min_hits"], (thr - 1e-9) / win.n_scans)}
     return tracks_from_accumulator(win, acc, thr, params)
 
 

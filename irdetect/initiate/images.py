@@ -19,6 +19,7 @@ def initiate_detections(detections, *, method: str = DEFAULTS["method"],
                         n_theta: int = DEFAULTS["n_theta"],
                         rho_step: float = DEFAULTS["rho_step"], tile: float = DEFAULTS["tile"],
                         vote_fraction: float = DEFAULTS["vote_fraction"],
+                        vote_band: float = 1.0,
                         parallel_fraction: float = DEFAULTS["parallel_fraction"],
                         q1: float = DEFAULTS["q1"], q2: float = DEFAULTS["q2"],
                         sigma: float = DEFAULTS["sigma"],
@@ -49,6 +50,12 @@ def initiate_detections(detections, *, method: str = DEFAULTS["method"],
     ----------
     detections : structured ndarray
         ``irdetect.tables.DETECTION`` rows (x = column, y = row).
+    vote_band : float
+        Half-width of each detection's Hough vote in sigmas (``hough_transform``'s
+        ``band``). 1 here, against the scans' 0 (the papers' single cell): a target's 3-4
+        detections of a short sequence within their errors of one line fall in one 2-px
+        cell only when the cell edges allow, and a target that turns holds a line over 3
+        combined frames only to about a sigma.
     window : int
         Combined frames per initiation window (Zhang et al.'s M scans; 0 = the whole
         sequence in one window). Windows overlap by half (``scan_windows`` with step

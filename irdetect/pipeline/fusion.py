@@ -12,7 +12,9 @@ follows targets too fast for a combined frame. Per window (``fuse_paths``):
   so both paths' rows carry the same score;
 * every kept per-frame track gives a detection at the window's middle frame;
 * a combined-frame and a per-frame detection within ``MERGE_PX`` of each other are one
-  target (``path`` both bits; the per-frame position, measured frame by frame, is kept).
+  target (``path`` both bits; the per-frame position, measured frame by frame, is kept);
+  the other combined-frame detections within ``MERGE_PX`` of a per-frame track's path over
+  the window are pieces of that target's streak and are dropped (``streak_distance``).
 
 Then Hough + subtractive clustering initiates the tracks on the fused detections
 (``initiate_tracks``, the papers' hand-off), each track's ``path`` the union of its
@@ -136,6 +138,31 @@ def along_track(det: np.ndarray, matched, start: int, peaks, radius: float):
 #: supports it (the per-frame path's gate)
 SUPPORT_GATE = 3.0
 
+def streak_distance(points: np.ndarray, tracks: np.ndarray) -> np.ndarray:
+    """Distance (px) of each point to each straight track's path over its frames.
+
+    Parameters
+    ----------
+    points : structured ndarray
+        Rows with x, y (px; x = column, y = row).
+    tracks : structured ndarray
+        ``tables.DETECTION`` rows: position (x, y) at the middle of frame_start ..
+        frame_end, velocity (vx, vy px/frame; NaN taken as 0).
+
+    Returns
+    -------
+    ndarray of shape (len(points), len(tracks))
+        The distance to the segment from the track's position at frame_start to the one
+        at frame_end.
+    """
+    half = 0.5 * (tracks["frame_end"] - tracks["frame_start"]).astype(float)
+    ux, uy = np.nan_to_num(tracks["vx"]) * half, np.nan_to_num(tracks["vy"]) * half
+    px = points["x"][:, None] - tracks["x"][None]                       # (P, T)
+    py = points["y"][:, None] - tracks["y"][None]
+    s = np.clip((px * ux + py * uy) / np.maximum(ux * ux + uy * uy, 1e-12), -1.0, 1.0)
+    return np.hypot(px - s * ux, py - s * uy)
+
+
 def fuse_paths(combined: np.ndarray, frame_tracks: np.ndarray) -> np.ndarray:
     """One detection per target per window from both paths (module notes).
 
@@ -177,6 +204,9 @@ def fuse_paths(combined: np.ndarray, frame_tracks: np.ndarray) -> np.ndarray:
         frame["snr"][f] = np.fmax(frame["snr"][f], comb["snr"][c])
         frame["significance"][f] = np.fmax(frame["significance"][f], comb["significance"][c])
         same[c] = True
+        # the rest that lie on a per-frame track's path over the window are pieces of that
+        # target's streak in the combined frame (12 frames x its speed long)
+        same[ci] |= streak_distance(comb[ci], frame[fi]).min(axis=1, initial=np.inf) <= MERGE_PX
     out = np.concatenate([comb[~same], frame])
     return out[np.argsort(out["combined_frame"], kind="stable")]
 
@@ -214,9 +244,12 @@ def initiate_tracks(detections: np.ndarray, config: ProcessConfig,
 
     params = asdict(config.initiate)
     image = initiate_detections(detections, **params)
+    gate = float(config.initiate.gate * config.initiate.sigma)
     if camera is None or len(camera) < 2 or len(detections) < 2 or not (
             np.ptp(camera["dx"]) >= MOVING_PX or np.ptp(camera["dy"]) >= MOVING_PX):
-        return image
+        out = image[_distinct_tracks(image, detections, None, gate)]
+        out["track_id"] = np.arange(len(out))
+        return out
     t = 0.5 * (detections["frame_start"] + detections["frame_end"])
     scene_det = detections.copy()
     off = camera_at(camera, t)
@@ -232,7 +265,7 @@ def initiate_tracks(detections: np.ndarray, config: ProcessConfig,
                          + start[:, 1] * np.sin(scene["theta"]))
         scene["scene"] = True
     both = np.concatenate([image, scene])
-    keep = _distinct_tracks(both, detections, camera, float(config.initiate.gate))
+    keep = _distinct_tracks(both, detections, camera, gate)
     out = both[keep]
     out["track_id"] = np.arange(len(out))
     return out
@@ -244,9 +277,14 @@ MOVING_PX = 1.0
 
 
 def _distinct_tracks(tracks, detections, camera, gate: float) -> np.ndarray:
-    """Indices of tracks to keep: of two whose supporting detections (those of their
-    span within ``gate`` px of their positions) overlap by half or more, the one with
-    more support, then the smaller mean distance, wins."""
+    """Indices of tracks to keep: of two that hold one target, the one with more support,
+    then the smaller mean distance, wins.
+
+    A track's support is the detections of its span within ``gate`` px of its positions.
+    Two tracks hold one target when their supports overlap by half or more, or when they
+    are successive pieces of one target that turns: they share detections and, in the
+    frames both spans cover, hold no other (two targets that cross share the crossing at
+    most)."""
     from irdetect.initiate import track_positions
 
     if len(tracks) < 2:
@@ -263,11 +301,22 @@ def _distinct_tracks(tracks, detections, camera, gate: float) -> np.ndarray:
     for i in order:                     # a loop over the tracks (a handful)
         if count[i] == 0 and kept:
             continue
-        if any((support[i] & support[j]).sum() >= 0.5 * min(count[i], count[j]) > 0
-               for j in kept):
+        if any(_one_target(support, inside, i, j, t, tracks) for j in kept):
             continue
         kept.append(int(i))
     return np.sort(np.array(kept, dtype=np.int64))
+
+
+def _one_target(support, inside, i, j, t, tracks) -> bool:
+    both = support[i] & support[j]
+    n = both.sum()
+    if n == 0:
+        return False
+    if n >= 0.5 * min(support[i].sum(), support[j].sum()):
+        return True
+    common = ((t >= max(tracks["frame_start"][i], tracks["frame_start"][j]))
+              & (t <= min(tracks["frame_end"][i], tracks["frame_end"][j])))
+    return bool(((support[i] | support[j]) & common & ~both).sum() == 0)
 
 
 def finish(combined: np.ndarray, peaks: np.ndarray, camera: np.ndarray,
