@@ -181,6 +181,25 @@ def test_marginal_mover_meets_the_clutter_that_moves_as_far():
     assert not test.passes(track, None, 40)                  # before ``learn`` frames
 
 
+def test_a_short_track_with_no_clutter_beside_it_meets_the_frames_clutter_density():
+    # 4 hits on a line in 4 frames with no other region within the test's radius: by
+    # the local count alone clutter could hardly make such a track (E far below the
+    # rate); in frames holding 60 regions each it could, and the track is not confirmed
+    test = ClutterTest((512, 640), false_tracks=0.001, floor=1e-6, window=30)
+    k = np.arange(4.0)
+    meas = np.column_stack([k, 100 + 3 * k, 200 + 0 * k])
+    lonely, _ = test.expectation(meas, 4, 0)
+    assert lonely < test.rate
+    for _ in range(20):
+        test.observe(60)
+    crowded, _ = test.expectation(meas, 4, 0)
+    assert crowded > test.rate
+    # a target seen 20 frames in a row still passes in those frames
+    k = np.arange(20.0)
+    long_, _ = test.expectation(np.column_stack([k, 100 + 3 * k, 200 + 0 * k]), 20, 0)
+    assert long_ < test.rate
+
+
 def test_tail_share_is_one_to_the_median_then_an_exponential_tail():
     v = np.arange(1.0, 21.0)                              # median 10.5, excess mean 5
     assert tail_share(v, 3.0) == 1.0

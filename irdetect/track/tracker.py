@@ -152,6 +152,7 @@ class _TrackerBase:
         assign, shared, blocked = self._associate(regions, z)
         if self.confirm is not None:
             self._count_clutter(z, assign)
+            self.confirm.observe(len(z))
         for i, t in enumerate(list(self.tracks)):
             rows = assign[i]
             if i in shared:
