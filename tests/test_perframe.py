@@ -239,7 +239,8 @@ def _windows(x, y):
 
 def test_a_turning_target_is_one_track_and_two_crossing_targets_are_two():
     # 3 px/frame on an arc turning 10 degrees per combined frame: no line holds all 5
-    # detections; two segments of 3 that share the middle one are one target
+    # detections; of two segments of 3 that share the middle one the second has only 2
+    # of its own, fewer than a Hough cell needs
     a = np.radians(10.0) * np.arange(5)
     r = 36.0 / np.radians(10.0)
     turning = _windows(100 + r * np.sin(a), 300 - r * (1 - np.cos(a)))

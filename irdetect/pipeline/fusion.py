@@ -23,6 +23,7 @@ detections'. Coordinates: x = column, y = row, px; time in frames.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict
 
 import cv2
@@ -237,17 +238,20 @@ def initiate_tracks(detections: np.ndarray, config: ProcessConfig,
     twice: on the image positions (a target the camera holds, whose scene path is the
     camera's) and on the scene positions, image minus offset (a target straight in the
     scene under a panning or shaking camera; ``scene`` rows, their positions follow the
-    camera, ``irdetect.initiate.track_positions``). Of two tracks that claim mostly the
-    same detections the one whose positions lie nearer them is kept.
+    camera, ``irdetect.initiate.track_positions``). Tracks that hold a target another
+    track holds better are dropped (``_distinct_tracks``).
     """
     from irdetect.initiate import camera_at, initiate_detections
 
     params = asdict(config.initiate)
     image = initiate_detections(detections, **params)
     gate = float(config.initiate.gate * config.initiate.sigma)
+    scans = len(np.unique(detections["combined_frame"]))
+    window = config.initiate.window or scans
+    need = max(2, math.ceil(config.initiate.vote_fraction * min(scans, window) - 1e-9))
     if camera is None or len(camera) < 2 or len(detections) < 2 or not (
             np.ptp(camera["dx"]) >= MOVING_PX or np.ptp(camera["dy"]) >= MOVING_PX):
-        out = image[_distinct_tracks(image, detections, None, gate)]
+        out = image[_distinct_tracks(image, detections, None, gate, need)]
         out["track_id"] = np.arange(len(out))
         return out
     t = 0.5 * (detections["frame_start"] + detections["frame_end"])
@@ -265,7 +269,7 @@ def initiate_tracks(detections: np.ndarray, config: ProcessConfig,
                          + start[:, 1] * np.sin(scene["theta"]))
         scene["scene"] = True
     both = np.concatenate([image, scene])
-    keep = _distinct_tracks(both, detections, camera, gate)
+    keep = _distinct_tracks(both, detections, camera, gate, need)
     out = both[keep]
     out["track_id"] = np.arange(len(out))
     return out
@@ -276,15 +280,16 @@ def initiate_tracks(detections: np.ndarray, config: ProcessConfig,
 MOVING_PX = 1.0
 
 
-def _distinct_tracks(tracks, detections, camera, gate: float) -> np.ndarray:
-    """Indices of tracks to keep: of two that hold one target, the one with more support,
-    then the smaller mean distance, wins.
+def _distinct_tracks(tracks, detections, camera, gate: float, need: int) -> np.ndarray:
+    """Indices of tracks to keep, best first (more support, then the smaller mean
+    distance): a track is dropped when half its support or more is a better kept track's
+    (one target claimed twice), or when fewer than ``need`` of its detections are no kept
+    track's (not a line of its own: a piece of a target that turns, or clutter that
+    borrows a target's detections; two targets that cross share the crossing and keep
+    the rest).
 
-    A track's support is the detections of its span within ``gate`` px of its positions.
-    Two tracks hold one target when their supports overlap by half or more, or when they
-    are successive pieces of one target that turns: they share detections and, in the
-    frames both spans cover, hold no other (two targets that cross share the crossing at
-    most)."""
+    A track's support is the detections of its span within ``gate`` px of its positions;
+    ``need`` the detections a Hough cell needs (the vote threshold)."""
     from irdetect.initiate import track_positions
 
     if len(tracks) < 2:
@@ -298,25 +303,15 @@ def _distinct_tracks(tracks, detections, camera, gate: float) -> np.ndarray:
     mean = np.where(count > 0, (dist * support).sum(1) / np.maximum(count, 1), np.inf)
     order = np.lexsort((mean, -count))
     kept: list[int] = []
+    claimed = np.zeros(len(detections), bool)
     for i in order:                     # a loop over the tracks (a handful)
-        if count[i] == 0 and kept:
-            continue
-        if any(_one_target(support, inside, i, j, t, tracks) for j in kept):
+        if kept and (count[i] == 0 or (support[i] & ~claimed).sum() < need or any(
+                (support[i] & support[j]).sum() >= 0.5 * min(count[i], count[j])
+                for j in kept)):
             continue
         kept.append(int(i))
+        claimed |= support[i]
     return np.sort(np.array(kept, dtype=np.int64))
-
-
-def _one_target(support, inside, i, j, t, tracks) -> bool:
-    both = support[i] & support[j]
-    n = both.sum()
-    if n == 0:
-        return False
-    if n >= 0.5 * min(support[i].sum(), support[j].sum()):
-        return True
-    common = ((t >= max(tracks["frame_start"][i], tracks["frame_start"][j]))
-              & (t <= min(tracks["frame_end"][i], tracks["frame_end"][j])))
-    return bool(((support[i] | support[j]) & common & ~both).sum() == 0)
 
 
 def finish(combined: np.ndarray, peaks: np.ndarray, camera: np.ndarray,
