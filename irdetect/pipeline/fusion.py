@@ -139,6 +139,7 @@ def along_track(det: np.ndarray, matched, start: int, peaks, radius: float):
 #: supports it (the per-frame path's gate)
 SUPPORT_GATE = 3.0
 
+
 def streak_distance(points: np.ndarray, tracks: np.ndarray) -> np.ndarray:
     """Distance (px) of each point to each straight track's path over its frames.
 

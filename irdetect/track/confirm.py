@@ -22,8 +22,8 @@ A tentative track (``irdetect.track.tracker``) is confirmed only when
    detector's level allows, over the frame's area) and at least the density of all the
    regions of the frames seen so far (``observe``): a 16-px disc that held no other
    region in 4 frames does not say the clutter is thin, and by the local count alone
-   3-4 hits of clutter passed (7 of the 15 tracks on the clutter-only crops of the real
-   folders, docs/results/tracking.md). A track is tested at every frame of
+   3-4 hits of clutter passed (the clutter-only crops of the real folders: 15 tracks by
+   the local count, 9 with this floor, docs/tracking.md). A track is tested at every frame of
    its tentative life, and a new track may start at every frame, so E is compared with
    ``false_tracks`` / ``window`` (``window`` = the frames a tentative track is tested on):
    a rate per frame;
