@@ -302,3 +302,24 @@ def test_local_significance_discounts_clutter_correlated_in_time():
     assert local[0] > 4.0 > local[1]                 # only the target passes the local test
     # in white noise the local test is no stricter than the verification
     assert local[0] >= 0.8 * z[0]
+
+
+@pytest.mark.parametrize("name", ["istd640-seq1-101", "istd640-seq2-204", "istd640-seq4-71"])
+def test_a_fast_target_that_turns_gets_one_right_track(name):
+    # 2-4 px/frame targets whose 4-5 detections curve (seq4-71 under a 4.6 px/frame pan):
+    # no track without the vote band, and a false one from the pieces of the target's
+    # streak in the combined frames or a second piece of its path (issue 26)
+    from conftest import real_sequence
+    from irdetect import tables
+    from irdetect.io import open_sequence, read_point_annotations
+    from irdetect.metrics.initiation import score_track_paths
+
+    folder = real_sequence(name)
+    with open_sequence(folder / "frames") as src:
+        frames = src[:]
+    truth = read_point_annotations(folder / "truth.txt", len(frames))
+    out = detect_sequence(frames, ProcessConfig())
+    rows = tables.from_columns(tables.TRUTH, frame=truth["frame"], target=truth["target"],
+                               x=truth["x"], y=truth["y"])
+    s = score_track_paths(out["tracks"], rows, gate=10.0, camera=out.get("camera"))
+    assert s["n_tracks"] == 1 and s["n_false"] == 0 and s["pt_overall"] == 1.0
