@@ -65,12 +65,50 @@ def tail_threshold(clutter, n_frames: int, rate: float, floor: float) -> float:
     s = s[np.isfinite(s)]
     if s.size <= rate * n_frames:
         return float(floor)
-    u = float(np.median(s)) if s.size else 0.0
-    excess = s[s > u] - u
+    u, excess = _excess(s)
     if excess.size < MIN_SAMPLE:
         return float(floor)
     scale = float(excess.mean())
     return max(float(floor), u + scale * math.log(excess.size / (rate * n_frames)))
+
+
+def _excess(values: np.ndarray) -> tuple[float, np.ndarray]:
+    """The tail model's median u of a sample and its values' excesses over it."""
+    u = float(np.median(values)) if values.size else 0.0
+    return u, values[values > u] - u
+
+
+def tail_share(values, x: float) -> float:
+    """The share of a sample at or above ``x``, its tail above the median taken as
+    exponential.
+
+    Parameters
+    ----------
+    values : array_like of shape (N,)
+        The sample (N >= 1).
+    x : float
+        The value.
+
+    Returns
+    -------
+    float
+        In (0, 1]: 1 at or below the median; above it (n_u / N) exp(-(x - u) / e), u the
+        median, n_u the values above it and e their mean excess over it (the tail model
+        of ``tail_threshold``); the empirical share, at least 1 / N,
+        when fewer than ``MIN_SAMPLE`` values lie above the median.
+
+    Examples
+    --------
+    >>> round(tail_share([0.1, 0.2, 0.3, 0.4, 0.5], 0.2), 3)
+    1.0
+    """
+    v = np.asarray(values, np.float64).ravel()
+    u, excess = _excess(v)
+    if x <= u:
+        return 1.0
+    if excess.size < MIN_SAMPLE:
+        return max(int((v >= x).sum()), 1) / v.size
+    return max(excess.size / v.size * math.exp(-(x - u) / float(excess.mean())), 1e-300)
 
 
 # --- the combined-frame path's operating point: a CFAR on the window's integrated map ---

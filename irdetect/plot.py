@@ -32,6 +32,7 @@ import numpy as np
 from irdetect.cluster import subtractive_cluster
 from irdetect.errors import InputError
 from irdetect.hough import hough_grid, hough_transform
+from irdetect.initiate.base import vote_threshold
 from irdetect.render import (COLOURS, WINDOW_PALETTE, Overlay, check_results_match,
                              display_limits, stretch)
 
@@ -40,7 +41,7 @@ log = logging.getLogger(__name__)
 #: initiator parameters the accumulator picture needs, with the initiator's defaults
 HOUGH_DEFAULTS = dict(n_theta=90, rho_step=2.0, vote_fraction=0.6, radius_rho=3.0,
                       radius_theta=4.0, squash=1.25, accept_ratio=0.5, reject_ratio=0.15,
-                      tile=0.0)
+                      tile=0.0, sigma=1.5, vote_band=0.0)   # results before vote_band: 0
 
 
 
@@ -142,8 +143,8 @@ def accumulator(detections, params: dict | None = None) -> dict:
     n_scans = np.unique(np.asarray(detections["combined_frame"])[ok]).size
     rmax = (float(np.hypot(x, y).max()) if x.size else 1.0) + p["rho_step"]
     grid = hough_grid(rho_max=rmax, rho_step=p["rho_step"], n_theta=int(p["n_theta"]))
-    acc = hough_transform(x, y, grid=grid)[0]
-    thr = max(1.0, math.ceil(p["vote_fraction"] * n_scans - 1e-9))
+    acc = hough_transform(x, y, grid=grid, band=p["vote_band"] * p["sigma"])[0]
+    thr = vote_threshold(p["vote_fraction"], n_scans)
     cells = np.argwhere(acc >= thr) if x.size else np.zeros((0, 2), np.int64)
     centres = np.zeros((0, 2))
     if len(cells) and n_scans >= 2:

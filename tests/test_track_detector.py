@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from irdetect.metrics.mot import clear_mot
-from irdetect.operating import tail_threshold
+from irdetect.operating import tail_share, tail_threshold
 from irdetect.track import track
-from irdetect.track.confirm import ClutterTest, tail_share
+from irdetect.track.confirm import ClutterTest
 from irdetect.track.detector import peak_regions
 
 

@@ -229,6 +229,12 @@ def support(win: Window, g, rho, theta, p, chunk: int = 2_000_000):
     return np.r_[0, np.cumsum(counts)], mem
 
 
+def vote_threshold(vote_fraction: float, n_scans: int) -> int:
+    """The votes a Hough cell needs: T = ceil(``vote_fraction`` x scans), at least 1
+    (Zhang et al.'s threshold)."""
+    return max(1, int(math.ceil(vote_fraction * n_scans - 1e-9)))
+
+
 def min_points(win, p):
     return max(2, int(math.ceil(p["min_hits"] * win.n_scans - 1e-9)))
 

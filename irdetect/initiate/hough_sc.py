@@ -24,7 +24,7 @@ import numpy as np
 
 from irdetect.cluster import subtractive_cluster
 from irdetect.hough import hough_transform, nms_peaks
-from irdetect.initiate.base import Window, dedupe, finish, support
+from irdetect.initiate.base import Window, dedupe, finish, support, vote_threshold
 from irdetect.initiate.clutter import can_pass, clutter_test
 from irdetect.initiate.common import verify
 
@@ -57,7 +57,7 @@ def initiate(points, *, params):
         return finish(win, [], None, None, None, None, params)
     acc = hough_transform(win.lx, win.ly, grid=win.grid, groups=win.grp, n_groups=win.n_groups,
                           band=params["vote_band"] * win.sigma[win.pt])
-    thr = max(1.0, math.ceil(params["vote_fraction"] * win.n_scans - 1e-9))
+    thr = vote_threshold(params["vote_fraction"], win.n_scans)
     # a track needs as many scans as a cell needs votes (its CV check drops outliers)
     params = {**params, "min_hits": max(params["min_hits"], (thr - 1e-9) / win.n_scans)}
     return tracks_from_accumulator(win, acc, thr, params)

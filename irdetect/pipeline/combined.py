@@ -279,7 +279,6 @@ class Pending:
             self.matched = self._dilated_sum = None     # release the frames
         return {"candidates": c, "combined_detections": det, "segments": segments}
 
-
     def dilated_sum(self) -> np.ndarray:
         """``fusion.dilated_sum`` of the window's matched frames, computed once."""
         if self._dilated_sum is None:

@@ -23,7 +23,6 @@ detections'. Coordinates: x = column, y = row, px; time in frames.
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict
 
 import cv2
@@ -33,6 +32,7 @@ from scipy.spatial import cKDTree
 
 from irdetect import tables
 from irdetect.config import ProcessConfig
+from irdetect.initiate.base import vote_threshold
 
 _NEIGHBOURS = np.ones((3, 3), np.uint8)
 
@@ -208,7 +208,8 @@ def fuse_paths(combined: np.ndarray, frame_tracks: np.ndarray) -> np.ndarray:
         same[c] = True
         # the rest that lie on a per-frame track's path over the window are pieces of that
         # target's streak in the combined frame (12 frames x its speed long)
-        same[ci] |= streak_distance(comb[ci], frame[fi]).min(axis=1, initial=np.inf) <= MERGE_PX
+        near = streak_distance(comb[ci], frame[fi]).min(axis=1, initial=np.inf)
+        same[ci] |= near <= MERGE_PX
     out = np.concatenate([comb[~same], frame])
     return out[np.argsort(out["combined_frame"], kind="stable")]
 
@@ -242,19 +243,26 @@ def initiate_tracks(detections: np.ndarray, config: ProcessConfig,
     camera, ``irdetect.initiate.track_positions``). Tracks that hold a target another
     track holds better are dropped (``_distinct_tracks``).
     """
+    from irdetect.initiate import initiate_detections
+
+    ic = config.initiate
+    params = asdict(ic)
+    tracks = initiate_detections(detections, **params)
+    if camera is not None and len(camera) >= 2 and len(detections) >= 2 and (
+            np.ptp(camera["dx"]) >= MOVING_PX or np.ptp(camera["dy"]) >= MOVING_PX):
+        tracks = np.concatenate([tracks, _scene_tracks(detections, camera, params)])
+    scans = len(np.unique(detections["combined_frame"]))
+    need = max(2, vote_threshold(ic.vote_fraction, min(scans, ic.window or scans)))
+    out = tracks[_distinct_tracks(tracks, detections, camera, float(ic.gate * ic.sigma), need)]
+    out["track_id"] = np.arange(len(out))
+    return out
+
+
+def _scene_tracks(detections: np.ndarray, camera, params: dict) -> np.ndarray:
+    """Tracks initiated on the detections' scene positions (image minus the camera's
+    offset at their time), ``scene`` rows in the image coordinates of their first frame."""
     from irdetect.initiate import camera_at, initiate_detections
 
-    params = asdict(config.initiate)
-    image = initiate_detections(detections, **params)
-    gate = float(config.initiate.gate * config.initiate.sigma)
-    scans = len(np.unique(detections["combined_frame"]))
-    window = config.initiate.window or scans
-    need = max(2, math.ceil(config.initiate.vote_fraction * min(scans, window) - 1e-9))
-    if camera is None or len(camera) < 2 or len(detections) < 2 or not (
-            np.ptp(camera["dx"]) >= MOVING_PX or np.ptp(camera["dy"]) >= MOVING_PX):
-        out = image[_distinct_tracks(image, detections, None, gate, need)]
-        out["track_id"] = np.arange(len(out))
-        return out
     t = 0.5 * (detections["frame_start"] + detections["frame_end"])
     scene_det = detections.copy()
     off = camera_at(camera, t)
@@ -262,18 +270,13 @@ def initiate_tracks(detections: np.ndarray, config: ProcessConfig,
     scene_det["y"] -= off[:, 1]
     scene = initiate_detections(scene_det, **params)
     if len(scene):
-        # into the image coordinates of each track's first frame
         start = camera_at(camera, scene["frame_start"])
         scene["x0"] += start[:, 0]
         scene["y0"] += start[:, 1]
         scene["rho"] += (start[:, 0] * np.cos(scene["theta"])
                          + start[:, 1] * np.sin(scene["theta"]))
         scene["scene"] = True
-    both = np.concatenate([image, scene])
-    keep = _distinct_tracks(both, detections, camera, gate, need)
-    out = both[keep]
-    out["track_id"] = np.arange(len(out))
-    return out
+    return scene
 
 
 #: the camera's offsets over the sequence spanning this many px make it "moving" for the

@@ -31,11 +31,12 @@ A tentative track (``irdetect.track.tracker``) is confirmed only when
    score that clutter of this sequence which moves as far reaches ``false_tracks`` times
    per frame, at least the detector's CFAR level. The clutter sample is every tentative
    track of ``min_hits`` hits or more that ended unconfirmed and every one alive (the one
-   tested among them: it may be clutter too), each with its score s and displacement m (test 1's units). Taking s and m
-   of clutter as independent, clutter tracks as good in both come at the rate of those
+   tested among them: it may be clutter too), each with its score s and displacement m
+   (test 1's units). Taking s and m of clutter as independent, clutter tracks as good in both come at the rate of those
    scoring s or more times the share F(m) of the sample that moves m or more: the level is
    ``irdetect.operating.tail_threshold`` of the scores at ``false_tracks`` / F(m), F the
-   exponential tail of the sample's displacements above their median (``tail_share``).
+   exponential tail of the sample's displacements above their median
+   (``irdetect.operating.tail_share``).
    Bright structure that stays put (m < 1) then no longer sets the level a clearly moving
    track must reach (istd640-seq3-237: static clutter scoring up to 49 put the level at
    106-150 over a target of 30 moving 8 units in 11 frames), while a track that moves no
@@ -54,7 +55,7 @@ import math
 import numpy as np
 
 from irdetect.initiate.clutter import LEVELS, chain_expectation, hypotheses
-from irdetect.operating import MIN_SAMPLE, tail_threshold
+from irdetect.operating import tail_share, tail_threshold
 
 #: the gate (sigmas) of the clutter test and of the motion test (the scans' default)
 GATE = 3.0
@@ -226,36 +227,3 @@ class ClutterTest:
         return (track.moved >= 1.0 and track.E <= self.rate
                 and track.score >= self.level(sample, track.moved, n_frames))
 
-
-def tail_share(values, x: float) -> float:
-    """The share of a sample at or above ``x``, its tail above the median taken as
-    exponential.
-
-    Parameters
-    ----------
-    values : array_like of shape (N,)
-        The sample (N >= 1).
-    x : float
-        The value.
-
-    Returns
-    -------
-    float
-        In (0, 1]: 1 at or below the median; above it (n_u / N) exp(-(x - u) / e), u the
-        median, n_u the values above it and e their mean excess over it (the tail model
-        of ``irdetect.operating.tail_threshold``); the empirical share, at least 1 / N,
-        when fewer than ``MIN_SAMPLE`` values lie above the median.
-
-    Examples
-    --------
-    >>> round(tail_share([0.1, 0.2, 0.3, 0.4, 0.5], 0.2), 3)
-    1.0
-    """
-    v = np.asarray(values, np.float64).ravel()
-    u = float(np.median(v))
-    if x <= u:
-        return 1.0
-    excess = v[v > u] - u
-    if excess.size < MIN_SAMPLE:
-        return max(int((v >= x).sum()), 1) / v.size
-    return max(excess.size / v.size * math.exp(-(x - u) / float(excess.mean())), 1e-300)
