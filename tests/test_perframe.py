@@ -253,3 +253,31 @@ def test_a_turning_target_is_one_track_and_two_crossing_targets_are_two():
     tracks = initiate_tracks(crossing[np.argsort(crossing["combined_frame"], kind="stable")],
                              ProcessConfig())
     assert len(tracks) == 2 and set(tracks["n_points"]) == {5}
+
+
+def _turning_scene(seed, n=60):
+    # a bright point (peak 12 noise sigmas) at (2, 1) px/frame that turns to (1, 2.5)
+    # px/frame after frame 47, as istd640-seq3-135's target does in its last window
+    rng = np.random.default_rng(seed)
+    f = np.arange(n, dtype=float)
+    x = 100 + 2.0 * np.minimum(f, 47) + 1.0 * np.maximum(f - 47, 0)
+    y = 100 + 1.0 * np.minimum(f, 47) + 2.5 * np.maximum(f - 47, 0)
+    yy, xx = np.mgrid[:256, :256]
+    frames = rng.normal(100, 2.0, (n, 256, 256)).astype(np.float32)
+    frames += 24.0 * np.exp(-((xx - x[:, None, None]) ** 2 + (yy - y[:, None, None]) ** 2)
+                            / (2 * 0.8 ** 2)).astype(np.float32)
+    truth = np.zeros(n, tables.TRUTH)
+    truth["frame"], truth["x"], truth["y"] = f, x, y
+    return frames, truth
+
+
+@pytest.mark.parametrize("seed", [1, 3])
+def test_a_chain_does_not_report_a_bright_target_where_it_did_not_turn(seed):
+    # a chain is straight over 3 windows: before, it went on where the target turned
+    # (seed 1: a detection 12 px off in the last window) or reached back into windows
+    # the later leg never crossed (seed 3: 27 and 9 px off, and a second track)
+    frames, truth = _turning_scene(seed)
+    out = detect_sequence(frames)
+    m = _score(out, frames, truth)
+    assert m["pd"] == 1.0 and m["false"] == 0
+    assert len(out["tracks"]) == 1

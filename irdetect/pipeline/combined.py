@@ -22,7 +22,7 @@ from irdetect.detect import detect
 from irdetect.fuse import fuse
 from irdetect.peaks import frame_level, frame_peaks
 from irdetect.operating import integrated_map, map_threshold, significance
-from irdetect.pipeline.fusion import along_track, dilated_sum, track_mean
+from irdetect.pipeline.fusion import along_track, dilated_sum, track_mean, track_values
 from irdetect.pipeline.timing import lap
 from irdetect.suppress import suppress
 from irdetect.verify import DP_LEADS, Evidence, matched_frame, noise_level, standardise
@@ -202,6 +202,14 @@ def evidence_of(pending, cc) -> Evidence | None:
 #: the windows the operating point integrates over: a chain's (the pipeline's
 #: ``N_CORRELATE``; the pipeline keeps the last windows' frames for as many)
 OPERATING_WINDOWS = 3
+#: a combined-frame detection whose median along its track over its own window's frames
+#: (the largest matched value within the correlation's ``tolerance`` of each position)
+#: is under this share of the largest such median of the ``OPERATING_WINDOWS`` windows
+#: is not in its window: the chain's straight path went on where a bright target turned
+#: (istd640-seq3-135's last window) or was not yet. A target of constant SNR holds about
+#: 1; the noise's 11 x 11 maximum (about 2.6) keeps every chain whose best window reads
+#: under 10
+OWN_SHARE = 0.25
 
 
 class Pending:
@@ -274,7 +282,18 @@ class Pending:
         if self.matched is not None:
             det["snr"], det["support"] = along_track(det, self.matched, self.start,
                                                      self.peaks, self.radius)
-            self._operating_point(det, ahead, behind)
+            blocks = self._operating_point(det, ahead, behind)
+            # a chain is a straight path over its windows: where the target turned (or
+            # left) its position in this window is an extrapolation; the window's own
+            # frames tell, read within the correlation's tolerance of the positions
+            mid = self.start + (len(self.matched) - 1) / 2.0
+            reach = int(round(self.tolerance))
+            medians = np.column_stack([np.median(track_values(det, p.start, p.matched, mid,
+                                                              reach), axis=1)
+                                       for p in blocks])                  # (N, windows)
+            absent = medians[:, 0] < OWN_SHARE * medians.max(axis=1)
+            c["confirmed"][np.flatnonzero(keep)[absent]] = False
+            det = det[~absent]
         if not keep_frames:
             self.matched = self._dilated_sum = None     # release the frames
         return {"candidates": c, "combined_detections": det, "segments": segments}
@@ -290,7 +309,8 @@ class Pending:
         map of ``OPERATING_WINDOWS`` windows: this one and the next ones a chain from it
         spans, or the ones before it at the sequence's end (those that do not overlap
         it): the 36 frames the verification summed, so a target integrates as it did
-        there while residue that persists keeps its spread (``irdetect.operating``)."""
+        there while residue that persists keeps its spread (``irdetect.operating``).
+        Returns those windows (Pending, this one first)."""
         blocks = [self]
         for side in (ahead, behind):
             for p in side:
@@ -307,6 +327,7 @@ class Pending:
         det["significance"] = significance(integrated, along, det["x"], det["y"])
         if self.false_rate > 0:
             det["level"] = map_threshold(integrated[0], self.false_rate, frames)
+        return blocks
 
     def _merge_duplicates(self) -> None:
         """One target split into two fused points, each confirmed by a different segment

@@ -58,16 +58,51 @@ def _track_xy(det: np.ndarray, times: np.ndarray, mid: float):
     return det["x"][:, None] + vx[:, None] * t[None], det["y"][:, None] + vy[:, None] * t[None]
 
 
-def track_mean(det: np.ndarray, blocks, mid: float) -> np.ndarray:
-    """Mean along detections' tracks of the largest matched value in the 3 x 3 pixels
-    about the track's position in each frame (a track 1 px off the target's peak, the
-    combined frame's position error, still reads its SNR).
+def track_values(det: np.ndarray, start: int, matched: np.ndarray, mid: float,
+                 reach: int = 1) -> np.ndarray:
+    """The largest matched value in the (2 reach + 1) square pixels about each
+    detection's track position in each frame of one window (3 x 3 by default: a track
+    1 px off the target's peak, the combined frame's position error, still reads its
+    SNR).
 
     Parameters
     ----------
     det : structured ndarray
         ``tables.DETECTION`` rows: position (x, y px) at frame ``mid``, image velocity
         (vx, vy px/frame; NaN taken as 0).
+    start : int
+        The window's first frame.
+    matched : ndarray of shape (L, H, W)
+        The window's matched standardised frames.
+    mid : float
+        The frame the positions are at.
+    reach : int
+        Half side of the square read about each position (px).
+
+    Returns
+    -------
+    ndarray of shape (N, L), float32
+    """
+    L, h, w = matched.shape
+    x, y = _track_xy(det, start + np.arange(L), mid)                      # (N, L)
+    col = np.rint(x).astype(np.intp)
+    row = np.rint(y).astype(np.intp)
+    frame = np.arange(L)[None]
+    best = np.full(x.shape, -np.inf, np.float32)
+    for dy in range(-reach, reach + 1):              # the square, clipped to the frame
+        for dx in range(-reach, reach + 1):
+            v = matched[frame, np.clip(row + dy, 0, h - 1), np.clip(col + dx, 0, w - 1)]
+            np.maximum(best, v, out=best)
+    return best
+
+
+def track_mean(det: np.ndarray, blocks, mid: float) -> np.ndarray:
+    """Mean of ``track_values`` (3 x 3) over the frames of several windows.
+
+    Parameters
+    ----------
+    det : structured ndarray
+        ``tables.DETECTION`` rows (see ``track_values``).
     blocks : sequence of (int, ndarray of shape (L_j, H, W))
         (first frame, matched standardised frames) of the windows to read.
     mid : float
@@ -79,18 +114,8 @@ def track_mean(det: np.ndarray, blocks, mid: float) -> np.ndarray:
     """
     total, count = np.zeros(len(det)), 0
     for start, matched in blocks:        # a loop over a few windows
-        L, h, w = matched.shape
-        x, y = _track_xy(det, start + np.arange(L), mid)                  # (N, L)
-        col = np.rint(x).astype(np.intp)
-        row = np.rint(y).astype(np.intp)
-        frame = np.arange(L)[None]
-        best = np.full(x.shape, -np.inf, np.float32)
-        for dy in (-1, 0, 1):            # the 3 x 3 neighbourhood, clipped to the frame
-            for dx in (-1, 0, 1):
-                v = matched[frame, np.clip(row + dy, 0, h - 1), np.clip(col + dx, 0, w - 1)]
-                np.maximum(best, v, out=best)
-        total += best.sum(axis=1, dtype=np.float64)
-        count += L
+        total += track_values(det, start, matched, mid).sum(axis=1, dtype=np.float64)
+        count += len(matched)
     return total / max(count, 1)
 
 
