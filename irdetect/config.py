@@ -41,6 +41,10 @@ class SuppressConfig:
     fixed_pattern: bool = True
     samples: int = 3
     lead_in: str = "future"
+    #: the first frames of this many earlier windows are the long-memory background of
+    #: a still camera (``suppress(long_past=)``: a target that stops stays detected;
+    #: 0: off, the default: docs/detection.md says what it costs the tracks)
+    long_memory: int = 0
 
 
 @dataclass(frozen=True)

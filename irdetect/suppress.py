@@ -55,9 +55,9 @@ METHODS = ("tophat", "maxmean", "maxmedian", "temporal", "registered", "auto", "
 LEAD_INS = ("future", "tophat")
 
 
-def suppress(frames, previous=None, following=None, camera=None, *, method: str = "auto",
-             size: int = 9, guard: int = 1, history: int = 12, gap: int = 8,
-             tolerance: int = 1, fixed_pattern: bool = True, samples: int = 3,
+def suppress(frames, previous=None, following=None, camera=None, long_past=None, *,
+             method: str = "auto", size: int = 9, guard: int = 1, history: int = 12,
+             gap: int = 8, tolerance: int = 1, fixed_pattern: bool = True, samples: int = 3,
              lead_in: str = "future") -> np.ndarray:
     """Suppress the background of one frame or a stack of frames.
 
@@ -107,6 +107,11 @@ def suppress(frames, previous=None, following=None, camera=None, *, method: str 
         first frame, respectively the first ``gap`` frames, of a sequence): built the
         same way from the frames after them at the mirrored lags (``"future"``, those
         in ``frames`` + ``following``), or a ``size`` top-hat / box mean (``"tophat"``).
+    long_past : ndarray of shape (S, H, W), optional
+        ``temporal`` (also as ``auto``'s choice): raw frames of a still camera from long
+        before ``frames`` (the pipeline passes the first frames of the earlier windows,
+        ``ProcessConfig.suppress.long_memory``); a point that arrived and stays keeps
+        its residual against their median (see Notes).
 
     Returns
     -------
@@ -132,6 +137,16 @@ def suppress(frames, previous=None, following=None, camera=None, *, method: str 
     structure wider than ``size`` keeps a plateau around it, daub-data13-a frame 6).
     Translation only (no rotation or parallax; the dilation absorbs up to ``tolerance``
     px of either).
+    Long memory (``long_past``, beyond the paper; issue 26): the ``history``-frame mean
+    learns a target that stops within ``history`` frames. Against L, the median of the
+    ``long_past`` frames, it still stands out: where F - L exceeds ``HOLD_K`` robust
+    sigmas of F - L while the residual F - B is under half of it, in 8-connected
+    components no wider or taller than ``size`` (point-like, like the top-hat's test),
+    dilated by 2 px, the residual is max(F - B, F - L). Structure that was there before
+    (in L) and wide changes (a cloud arriving, a gain step) are left to B; a point that
+    moves has F - B about F - L and is unchanged. A target that stops stays visible
+    until it is in half the ``long_past`` frames.
+
     Fixed pattern: P = median over the frames (``previous`` and ``frames``) of
     F - medianBlur3(F), subtracted from every frame; a target sits on the same pixel
     in well under half of them (DAUB: at most 46 % of 24 frames) and is not in P.
@@ -200,7 +215,11 @@ def suppress(frames, previous=None, following=None, camera=None, *, method: str 
             # values as converted copies, without converting the past once more)
             p = None if past is None else past[-history:]
             p = p if p is None or p.dtype.kind in "biu" else _clean(p)
-            return _temporal(stack, int(history), int(size), p, future, lead_in == "future")
+            out = _temporal(stack, int(history), int(size), p, future, lead_in == "future")
+            if long_past is not None and len(long_past) >= HOLD_MIN:
+                _keep_arrivals(out, stack, _long_background(long_past, stack.shape[1:]),
+                               int(size))
+            return out
 
         def registered():
             return _registered(stack, None if past is None else _clean(past), cam,
@@ -462,6 +481,46 @@ def _temporal(stack: np.ndarray, history: int, size: int, past: np.ndarray | Non
         if i - history >= 0:
             total -= full(i - history)
     return out
+
+
+#: long memory (``suppress(long_past=)``): a point's excess over the long-memory
+#: background, in robust sigmas of that excess, that marks it
+HOLD_K = 3.0
+#: ... and the fewest long-memory frames it takes: the median of fewer is noisy, and its
+#: dips, the same in every frame of a window, integrate like a still target
+HOLD_MIN = 4
+_HOLD_DILATE = np.ones((5, 5), np.uint8)
+
+
+def _long_background(long_past, shape) -> np.ndarray:
+    """The median over the long-memory frames (S, H, W) -> float32 (H, W)."""
+    lp = np.asarray(long_past)
+    if lp.ndim != 3 or lp.shape[1:] != tuple(shape):
+        raise ValueError(f"long_past must have shape (S, {shape[0]}, {shape[1]}), "
+                         f"got {lp.shape}")
+    lp = _clean(lp)
+    return lp[0].copy() if len(lp) == 1 else _median_axis0(lp)
+
+
+def _keep_arrivals(residual: np.ndarray, stack: np.ndarray, long_bg: np.ndarray,
+                   size: int) -> None:
+    """In place, per frame: residual = max(residual, frame - long_bg) about small points
+    that stand out against ``long_bg`` but were learnt by the short background (see
+    ``suppress``, Notes: long memory)."""
+    sigma = _robust_sigma((stack[0] - long_bg)[::2, ::2].ravel())
+    excess = np.empty_like(long_bg)
+    for frame, res in zip(stack, residual):   # a loop over the window's frames
+        np.subtract(frame, long_bg, out=excess)
+        cand = (excess > HOLD_K * sigma) & (res < 0.5 * excess)
+        if not cand.any():
+            continue
+        n, lab, stats, _ = cv2.connectedComponentsWithStats(cand.view(np.uint8), connectivity=8)
+        small = (stats[:, cv2.CC_STAT_WIDTH] <= size) & (stats[:, cv2.CC_STAT_HEIGHT] <= size)
+        small[0] = False
+        if not small.any():
+            continue
+        mask = cv2.dilate(small[lab].view(np.uint8), _HOLD_DILATE).view(bool)
+        np.maximum(res, excess, out=res, where=mask)
 
 
 def _accumulate(frame: np.ndarray, total: np.ndarray) -> None:

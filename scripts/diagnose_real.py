@@ -76,6 +76,7 @@ def residual_peaks(frames, truth, start, cfg, length):
     """Per frame of the window: the suppressed frame's largest value within 1 px of the
     truth, in robust noise sigmas (PSF-smoothed as the dp merit sees it)."""
     sup = asdict(cfg.suppress)
+    sup.pop("long_memory")               # the pipeline's, not suppress's
     keep = past_frames(**sup)
     ahead = future_frames(start=start, stop=start + length, **sup)
     res = suppress(frames[start:start + length], previous=frames[max(0, start - keep):start],

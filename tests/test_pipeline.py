@@ -272,3 +272,24 @@ def test_a_7x7_px_target_is_found(seed, speed):
     # PSF sigma 1.5 px: 7 x 7 px above a tenth of the peak (the SIRST "small" target)
     m, _ = _scene_score(seed, snr=5.0, psf_sigma=1.5, speed=[speed, speed])
     assert m["targets"] == 6 and m["detected"] >= 5 and m["false"] <= 1
+
+
+@pytest.mark.parametrize("seed", [0, 2])
+def test_long_memory_keeps_a_target_that_stops_detected(seed):
+    # wan2008's 5 targets at SNR 5 stop in the scene at frame 30 and hover; the 12-frame
+    # background learns them, the long memory (the first frames of 8 earlier windows of
+    # the still camera) does not: windows 4-5 (frames 48-71) find them only with it
+    frames, truth = simulate("wan2008", n_frames=84, snr=5, stop_frame=30, rng=seed)
+    late = truth[(truth["frame"] >= 48) & (truth["frame"] < 72)]
+    found = {}
+    for memory in (0, 8):
+        config = ProcessConfig()
+        config = dataclasses.replace(config, suppress=dataclasses.replace(
+            config.suppress, long_memory=memory))
+        det = detect_sequence(frames, config)["detections"]
+        det = det[(det["combined_frame"] >= 4) & (det["combined_frame"] <= 5)]
+        found[memory] = score_detections(det, late, n_frames=84, length=12, step=12,
+                                         shape=frames.shape[1:], gate=3.0)
+    assert found[0]["detected"] == 0
+    assert found[8]["detected"] >= 4 and found[8]["false"] == 0
+    assert np.all(np.diff(truth[truth["target"] == 0]["x"][30:]) == 0)   # they hover

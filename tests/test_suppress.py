@@ -46,6 +46,32 @@ def test_temporal_removes_still_clutter_keeps_a_moving_point():
     assert np.abs(res[20, 45:, :]).max() < 6.0     # the edge is gone (noise only)
 
 
+def test_long_memory_keeps_a_point_that_stopped_and_nothing_that_was_there_before():
+    # a point that stopped before the past frames is learnt by the 12-frame mean; the
+    # median of older frames of a still camera (long_past) does not hold it. A point
+    # that was in those older frames too, and a wide patch that arrived with it, stay
+    # suppressed
+    rng = np.random.default_rng(3)
+    stack = rng.normal(50, 1, (36, 64, 64)).astype(np.float32)
+    older = rng.normal(50, 1, (6, 64, 64)).astype(np.float32)
+    for frame in stack:
+        _point(frame, 20.0, 30.0, 12.0)           # arrived: not in `older`
+        _point(frame, 45.0, 15.0, 12.0)           # was there before: in `older` too
+        frame[40:60, 35:60] += 12.0               # a wide change (a cloud, a gain step)
+    for frame in older:
+        _point(frame, 45.0, 15.0, 12.0)
+    past, block = stack[:24], stack[24:]
+    plain = suppress(block, previous=past, method="temporal", history=12)
+    kept = suppress(block, previous=past, long_past=older, method="temporal", history=12)
+    assert np.abs(plain[:, 30, 20]).max() < 5.0
+    assert kept[:, 30, 20].min() > 9.0
+    assert np.abs(kept[:, 15, 45]).max() < 5.0
+    assert np.abs(kept[:, 42:58, 37:58]).max() < 6.0
+    np.testing.assert_array_equal(kept[:, :, :10], plain[:, :, :10])   # noise untouched
+    few = suppress(block, previous=past, long_past=older[:3], method="temporal", history=12)
+    np.testing.assert_array_equal(few, plain)  # fewer than HOLD_MIN: no long memory
+
+
 def test_temporal_streams_like_one_block():
     rng = np.random.default_rng(1)
     stack = rng.normal(10, 2, (30, 16, 16)).astype(np.float32)

@@ -34,7 +34,7 @@ from irdetect.pipeline.combined import Pending, StageParams, correlate_windows, 
 from irdetect.pipeline.fusion import SUPPORT_GATE, finish, initiate_tracks
 from irdetect.pipeline.reader import Reader
 from irdetect.pipeline.timing import Ready, lap
-from irdetect.suppress import future_frames, past_frames
+from irdetect.suppress import STILL_PX, future_frames, past_frames
 
 __all__ = ["CHUNK_TABLES", "N_CORRELATE", "check_config", "check_frames", "detect_sequence",
            "finish", "fit_config", "initiate_tracks", "iter_results", "min_frames",
@@ -175,6 +175,19 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
     pending: deque = deque()
     segment_id = 0
     bar = _bar(n_frames, progress)
+    # the first frame of each of the last windows: the long-memory background
+    firsts: deque = deque(maxlen=params.long_memory or 1)
+    long_memory = params.long_memory and config.suppress.method in ("auto", "temporal")
+
+    def long_past(s: int, end: int):
+        """The earlier windows' first frames, while the camera held still since the
+        oldest of them (else None)."""
+        if not (long_memory and firsts):
+            return None
+        span = reader.offsets[firsts[0][0]:end]
+        if np.ptp(span, axis=0).max() >= STILL_PX:
+            return None
+        return np.stack([f for _, f in firsts])
 
     def submit(k: int):
         t0 = time.perf_counter()
@@ -184,15 +197,18 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
         block, following = block[:cc.length], block[cc.length:]
         previous = previous if len(previous) else None
         following = following if len(following) else None
+        memory = long_past(s, s + cc.length)
+        if long_memory:
+            firsts.append((s, block[0].copy()))
         if pool is None:
             lap(timings, "read", t0)
-            return Ready(front(block, previous, params, timings, following, camera))
+            return Ready(front(block, previous, params, timings, following, camera, memory))
         # the reader's buffer is reused: the thread gets its own copy
         block, camera = block.copy(), camera.copy()
         previous = None if previous is None else previous.copy()
         following = None if following is None else following.copy()
         lap(timings, "read", t0)
-        return pool.submit(front, block, previous, params, timings, following, camera)
+        return pool.submit(front, block, previous, params, timings, following, camera, memory)
 
     corrs: deque = deque()       # correlations of window triples submitted, in order
     first = 0                    # the oldest pending window

@@ -101,6 +101,11 @@ class StageParams:
 
     def __init__(self, config: ProcessConfig):
         self.suppress = asdict(config.suppress)
+        # the pipeline picks the long-memory frames; suppress takes the frames
+        self.long_memory = self.suppress.pop("long_memory")
+        if int(self.long_memory) != self.long_memory or self.long_memory < 0:
+            raise ValueError(f"suppress.long_memory must be an integer >= 0, "
+                             f"got {self.long_memory!r}")
         self.combine = {**asdict(config.combine), "step": config.combine.length}
         self.detect = asdict(config.detect)
         self.fuse = asdict(config.fuse)
@@ -126,10 +131,11 @@ class StageParams:
 
 
 def front(block, previous, params: StageParams, timings: dict | None, following=None,
-           camera=None):
+           camera=None, long_past=None):
     """One window's suppression, combination, detection and fusion (``following``: the
     raw frames after the window that the first frames' background looks ahead to;
-    ``camera``: the offsets of previous, block and following).
+    ``camera``: the offsets of previous, block and following; ``long_past``: the
+    long-memory frames, ``suppress(long_past=)``).
 
     Returns (candidates, candidate pixels, matched residual frames (L, H, W) or None,
     the per-frame path's peaks (``tables.FRAME_DETECTION``, frames counted from the
@@ -137,7 +143,7 @@ def front(block, previous, params: StageParams, timings: dict | None, following=
     """
     t = time.perf_counter()
     residual = suppress(block, previous=previous, following=following, camera=camera,
-                        **params.suppress)
+                        long_past=long_past, **params.suppress)
     t = lap(timings, "suppress", t)
     presmoothed = params.matched and params.combine["projection"] == "dp" and params.psf > 0
     if presmoothed:

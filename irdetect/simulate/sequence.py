@@ -55,6 +55,8 @@ class SequenceScenario:
     speed: tuple = (1.0, 1.0)
     directions: tuple = ()          # degrees, one per target; empty = uniform at random
     margin: float = 8.0             # px kept between every target path and the border
+    stop_frame: int = 0             # the targets stop in the scene at this frame and hover
+                                    # there (0: they never stop)
     # structured clutter
     cloud_amplitude: float = 0.0    # peak-to-peak grey levels of the cloud field
     cloud_scale: float = 24.0       # px, correlation length of the cloud field
@@ -124,6 +126,9 @@ def _validate(s: SequenceScenario, path=None) -> None:
     if len(s.speed) != 2 or not 0 <= s.speed[0] <= s.speed[1]:
         raise InputError(f"speed must be [min, max] with 0 <= min <= max, got {s.speed}", path,
                          keys=("speed",))
+    if s.stop_frame < 0:
+        raise InputError(f"stop_frame must be >= 0, got {s.stop_frame}", path,
+                         keys=("stop_frame",))
     if s.directions and len(s.directions) != s.n_targets:
         raise InputError(f"directions has {len(s.directions)} angles for {s.n_targets} "
                          "targets", path, keys=("directions", "n_targets"))
@@ -187,13 +192,16 @@ def camera_offsets(s: SequenceScenario, rng: np.random.Generator) -> np.ndarray:
 def truth_table(s: SequenceScenario, paths: np.ndarray,
                 camera: np.ndarray | None = None) -> np.ndarray:
     """Ground truth rows (``tables.TRUTH``) for every target in every frame it is inside
-    (image positions: ``paths`` plus the camera's jitter, ``camera`` minus its pan)."""
+    (image positions: ``paths`` plus the camera's jitter, ``camera`` minus its pan; from
+    ``stop_frame`` on a target moves with the pan alone)."""
     frames = np.arange(s.n_frames)
     n = len(paths)
     f = np.repeat(frames, n)
     j = np.tile(np.arange(n), s.n_frames)
-    x = paths[j, 0] + paths[j, 2] * f
-    y = paths[j, 1] + paths[j, 3] * f
+    moved = np.minimum(f, s.stop_frame) if s.stop_frame else f     # frames of own motion
+    pan_x, pan_y = s.camera_pan
+    x = paths[j, 0] + (paths[j, 2] - pan_x) * moved + pan_x * f
+    y = paths[j, 1] + (paths[j, 3] - pan_y) * moved + pan_y * f
     if camera is not None:
         jx, jy = (camera - frames[:, None] * np.asarray(s.camera_pan, float)).T
         x, y = x + jx[f], y + jy[f]

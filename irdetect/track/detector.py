@@ -90,6 +90,7 @@ def detector_blocks(frames, *, length: int = 12, psf: float = 1.0, tile: int = 3
     from irdetect.pipeline.reader import Reader     # the process command's window reader
 
     sp = {**SUPPRESS_DEFAULTS, **(suppression or {})}
+    sp.pop("long_memory", None)          # process's long memory: the tracker has none
     n = int(frames.shape[0])
     if n == 0:
         return
