@@ -128,6 +128,21 @@ def test_frames_without_regions_coast_then_end():
     assert summary["frame_end"][0] == 17 and summary["score"][0] == pytest.approx(15 / 18)
 
 
+def test_a_confirmed_track_that_released_no_point_has_no_summary_row():
+    # confirmed while coasting (the clutter test may pass on a missed frame) and never hit
+    # again: its held-back points are dropped, so it must not leave an empty row
+    from irdetect.track.tracker import Track
+    tr = FCMPMHTTracker()
+    for k in range(10):
+        tr.step(k, _regions([(20.0 + k, 40.0, 12, 140)]), SHAPE)
+    ghost = Track(track_id=99, x=np.zeros(4), P=np.eye(4), dQ=np.zeros((4, 4)), grey=1.0,
+                  area=1.0, born=0, confirmed=True)
+    tr._ended.append(ghost)
+    summary = tr.finish()
+    assert list(summary["track_id"]) != [] and 99 not in summary["track_id"]
+    assert (summary["n_points"] > 0).all()
+
+
 def test_glint_storm_bounded_work_and_no_false_tracks():
     rng = np.random.default_rng(9)
     tr = FCMPMHTTracker(max_tracks=30)

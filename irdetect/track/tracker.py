@@ -186,7 +186,9 @@ class _TrackerBase:
         for t in self.tracks:
             self._end(t)
         self.tracks = []
-        done = sorted((t for t in self._ended if t.confirmed), key=lambda t: t.track_id)
+        # a track confirmed while coasting that is never hit again released no point
+        done = sorted((t for t in self._ended if t.confirmed and t.sums[0] > 0),
+                      key=lambda t: t.track_id)
         return _summaries(done)
 
     # -- Kalman --------------------------------------------------------------------------
@@ -635,8 +637,6 @@ def _summaries(done: list[Track]) -> np.ndarray:
     out = tables.from_columns(tables.TRACK, n=len(done))
     for i, t in enumerate(done):
         n, sf, sff, sx, sy, sxf, syf, sxx, syy, sxy, meas = t.sums
-        if n == 0:
-            continue
         fm, xm, ym = sf / n, sx / n, sy / n
         vf = sff / n - fm * fm
         vx = (sxf / n - xm * fm) / vf if vf > 0 else 0.0
