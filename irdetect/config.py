@@ -194,6 +194,7 @@ class TrackConfig:
     sigma: float = 1.0
     max_speed: float = 16.0
     learn_frames: int = 12
+    motion_p: float = 0.001
     sea_sky: bool = False
     band_above: float = 5.0
     band_below: float = 40.0

@@ -69,9 +69,12 @@ ISSUE17 = dict(regions="tophat", false_tracks=0.0, confirm_window=5, max_tracks=
 #: one level per frame
 FIRST_ROUND = dict(ISSUE17, k=4.0, smooth=0.0, tile=0)
 #: the real-data settings chosen while building the per-frame detector's regions (issue
-#: 28), reported leave-one-out: the matched filter's sigma and the frames before the first
-#: confirmation
-REAL_GRID = [dict(psf=p, learn_frames=n) for p in (1.0, 0.6) for n in (12, 0)]
+#: 28), reported leave-one-out: the matched filter's sigma, the frames before the first
+#: confirmation and the motion's significance level (the defaults first)
+REAL_GRID = ([dict(psf=p, learn_frames=n) for p in (1.0, 0.6) for n in (12, 0)]
+             + [dict(motion_p=m) for m in (0.01, 1.0)])
+#: the clutter-only crops are also tracked without the motion's significance test
+NO_SIGNIFICANCE = dict(motion_p=1.0)
 #: px: a clutter-only crop keeps this far from the target's whole path
 CROP_MARGIN = 16
 #: px: the narrowest crop side
@@ -280,10 +283,10 @@ def _real():
             frames = np.asarray(src[:])[:, a:b, c:d]
             points, tracks = track(frames)
             crops.append((folder.name, f"{d - c}x{b - a} at x {c}, y {a}", len(frames),
-                          len(tracks), len(points)))
+                          len(tracks), len(points), len(track(frames, **NO_SIGNIFICANCE)[1])))
             print(crops[-1], flush=True)
         else:
-            crops.append((folder.name, "no strip clear of the path", 0, 0, 0))
+            crops.append((folder.name, "no strip clear of the path", 0, 0, 0, 0))
     names = [f.name for f in folders]
     loo = []
     for held in names:
@@ -302,17 +305,20 @@ def _real():
                  for j, g in enumerate(REAL_GRID)]
     n_frames = sum(c[2] for c in crops)
     n_tracks = sum(c[3] for c in crops)
-    crop_rows = [f"| {n} | {box} | {f} | {t} | {p} |" for n, box, f, t, p in crops]
+    n_plain = sum(c[5] for c in crops)
+    crop_rows = [f"| {n} | {box} | {f} | {t} | {p} | {q} |" for n, box, f, t, p, q in crops]
     extra = f"""
 At the goal (MOTA >= 0.8 and IDF1 >= 0.8, the defaults): {sum(_at_goal(g) for g in
     [grid[n, 0] for n in names])} of {len(names)} folders.
 
 ### Leave-one-out of the settings chosen on the real folders
 
-While the per-frame detector's regions were built (issue 28) two settings were chosen by
+While the per-frame detector's regions were built (issue 28) three settings were chosen by
 looking at these folders: the matched filter's sigma `psf` (1.0 px, issue 17's `smooth`,
-the default; against 0.6 px, `irdetect process`'s) and `learn_frames` (12: no confirmation before the
-sequence's clutter sample is 12 frames old; 0: from the first frame). Each folder's row
+the default; against 0.6 px, `irdetect process`'s), `learn_frames` (12: no confirmation before the
+sequence's clutter sample is 12 frames old; 0: from the first frame) and `motion_p` (0.001:
+a tentative track's motion significant against its hits' scatter; 0.01, and 1: no such
+test; the level was looked at on the clutter-only crops below). Each folder's row
 takes the setting of this grid that puts the most *other* folders at the goal (ties: the
 higher mean MOTA over them), so its figures are on a folder the setting was not chosen on.
 Two rules without a setting of their own were also written after looking at these folders
@@ -336,10 +342,11 @@ Each folder's frames cropped to the largest strip at least {CROP_MARGIN} px from
 whole path (at least {CROP_MIN} px on each side), tracked with the defaults: every track is a
 false track (unless the crop holds an object the truth does not name). Goal: at most 1
 false track per 1,000 frames. In all: {n_tracks} tracks in {n_frames} frames
-({1000 * n_tracks / max(n_frames, 1):.1f} per 1,000 frames).
+({1000 * n_tracks / max(n_frames, 1):.1f} per 1,000 frames); without the motion's
+significance test (`motion_p` 1) {n_plain} ({1000 * n_plain / max(n_frames, 1):.1f} per 1,000).
 
-| folder | crop (W x H px) | frames | tracks | track points |
-|---|---|---|---|---|
+| folder | crop (W x H px) | frames | tracks | track points | tracks, `motion_p` 1 |
+|---|---|---|---|---|---|
 {chr(10).join(crop_rows)}
 """
     return rows, extra

@@ -8,7 +8,7 @@ import pytest
 from irdetect.metrics.mot import clear_mot
 from irdetect.operating import tail_share, tail_threshold
 from irdetect.track import track
-from irdetect.track.confirm import ClutterTest
+from irdetect.track.confirm import ClutterTest, still_chance
 from irdetect.track.detector import peak_regions
 
 
@@ -174,10 +174,10 @@ def test_marginal_mover_meets_the_clutter_that_moves_as_far():
     # 1.5 units is as good as that clutter and is not confirmed
     test = ClutterTest((256, 256), false_tracks=0.001, score_floor=4.2, learn=0)
     sample = _clutter_sample(rng, 40, 1.0, lambda n: rng.uniform(1.0, 3.0, n))
-    track = SimpleNamespace(moved=1.5, E=0.0, score=7.0)
+    track = SimpleNamespace(moved=1.5, still=0.0, E=0.0, score=7.0)
     assert test.level(sample, 1.5, 40) > 7.0
     assert not test.passes(track, sample, 40)
-    assert test.passes(SimpleNamespace(moved=1.5, E=0.0, score=20.0), sample, 40)
+    assert test.passes(SimpleNamespace(moved=1.5, still=0.0, E=0.0, score=20.0), sample, 40)
     assert not test.passes(track, None, 40)                  # before ``learn`` frames
 
 
@@ -198,6 +198,42 @@ def test_a_short_track_with_no_clutter_beside_it_meets_the_frames_clutter_densit
     k = np.arange(20.0)
     long_, _ = test.expectation(np.column_stack([k, 100 + 3 * k, 200 + 0 * k]), 20, 0)
     assert long_ < test.rate
+
+
+def test_still_chance_is_the_f_test_of_zero_velocity():
+    from scipy import stats
+    # hits on a moving line with residuals of +-0.5 px (none is an outlier): F(2, 2(n-2))
+    k = np.arange(10.0)
+    r = 0.5 * (-1.0) ** k
+    x, y = 3 + 0.2 * k + r, 7 - 0.1 * k - r
+    vx, vy = np.polyfit(k, x, 1)[0], np.polyfit(k, y, 1)[0]
+    ex, ey = x - np.polyval(np.polyfit(k, x, 1), k), y - np.polyval(np.polyfit(k, y, 1), k)
+    F = (vx ** 2 + vy ** 2) * ((k - k.mean()) ** 2).sum() / 2 / ((ex ** 2 + ey ** 2).sum() / 16)
+    assert still_chance(k, x, y) == pytest.approx(stats.f.sf(F, 2, 16), rel=1e-9)
+    assert still_chance(k[:2], x[:2], y[:2]) == 1.0
+    # a point that stays put: the chance is (nearly) uniform, within a factor 2 at 1 %
+    g = np.random.default_rng(0)
+    p = np.array([still_chance(np.arange(8), g.normal(0, 1.5, 8), g.normal(0, 1.5, 8))
+                  for _ in range(3000)])
+    assert 0.005 <= (p <= 0.01).mean() <= 0.02
+
+
+def test_a_point_whose_centroid_wanders_is_not_a_track():
+    # a bright point that stays put, its centroid scattered 1.5 px per axis frame to frame
+    # (a peak wandering over a bright structure), beside a target at 1 px/frame: the
+    # wander fits lines that move the 4.2 px of the first test, not significantly
+    n, h, w = 80, 96, 128
+    wandering = 0
+    for seed in (1, 3):
+        g = np.random.default_rng(seed)
+        frames = g.normal(100, 3, (n, h, w)).astype(np.float32)
+        for t in range(n):
+            frames[t] += _blob((h, w), 90 + g.normal(0, 1.5), 60 + g.normal(0, 1.5), 1, 1, 30)
+            frames[t] += _blob((h, w), 10 + t, 20 + 0.2 * t, 1, 1, 30)
+        points, tracks = track(frames)
+        assert len(tracks) == 1 and points["x"].max() > 80 and points["y"].max() < 40
+        wandering += len(track(frames, motion_p=1.0)[1]) - 1
+    assert wandering >= 2                          # without the significance test
 
 
 def test_tail_share_is_one_to_the_median_then_an_exponential_tail():

@@ -11,6 +11,15 @@ A tentative track (``irdetect.track.tracker``) is confirmed only when
    which stays put in the image, does move against the scene with the camera: requiring
    motion in the image as well removed 14 of istd640-seq3-135's 26 false tracks but lost
    the DAUB targets the camera holds still, so it is not done);
+   Its motion must also be **significant against its own scatter**: the F test of zero
+   velocity of that fit, ``still_chance`` (the chance that a point which stays put, its
+   centroid scattered as much as the track's hits scatter about their line, fits a line
+   that moves this much) at most ``motion_p`` / ``window`` (the test is made at every
+   frame of a tentative life, as test 2's). A centroid that wanders over a bright
+   structure can drift the 3 sqrt(2) sigma of the first test (istd640-seq1-243's
+   clutter-only crop: 4.6 px in 8 hits scattered 1.4 px about their line, chance 0.005),
+   a target's hits lie on their line (the real folders' targets: chance < 1e-10 at
+   confirmation);
 2. clutter of the density measured around it would make at most ``false_tracks`` tracks
    per frame as good anywhere in the frame: the scans clutter test of
    ``irdetect.initiate.clutter`` (``chain_expectation``), E = H J min_j B(n_j; M, p(g_j))
@@ -61,6 +70,56 @@ from irdetect.operating import tail_share, tail_threshold
 GATE = 3.0
 
 
+def still_chance(frame: np.ndarray, x: np.ndarray, y: np.ndarray) -> float:
+    """The F test of zero velocity of a constant-velocity least-squares fit.
+
+    With n hits, the fit's velocity v = (vx, vy) and S = sum (t - mean t)^2 over the
+    hits' frames t, the residual variance per axis s^2 = sum (ex^2 + ey^2) / (2 (n - 2))
+    and F = |v|^2 S / (2 s^2), which for a point that stays put (independent Gaussian
+    scatter) follows F(2, 2 (n - 2)): the chance of an F this large is
+    (1 + F / (n - 2))^-(n - 2). The fit is made twice: the second time without the
+    hits more than 3 times the median distance from the first line (a noise peak a
+    young track took in its wide gate fits a motion the point does not have).
+
+    Parameters
+    ----------
+    frame, x, y : ndarray of shape (n,)
+        The hits' frames and positions (x = column, y = row, px).
+
+    Returns
+    -------
+    float
+        The chance in [0, 1]; 1 with fewer than 3 hits or all in one frame, 0 for hits
+        exactly on a moving line.
+    """
+    f, x, y = (np.asarray(a, np.float64) for a in (frame, x, y))
+    fit = _line(f, x, y)
+    if fit is None:
+        return 1.0
+    e = np.hypot(*fit[3])
+    keep = e <= 3.0 * np.median(e)
+    fit = _line(f[keep], x[keep], y[keep])
+    if fit is None:
+        return 1.0
+    n, S, (vx, vy), (ex, ey) = fit
+    s2 = float((ex * ex + ey * ey).sum()) / (2 * (n - 2))
+    motion = (vx * vx + vy * vy) * S / 2
+    if s2 <= 0:
+        return 0.0 if motion > 0 else 1.0
+    return float((1.0 + motion / s2 / (n - 2)) ** -(n - 2))
+
+
+def _line(f, x, y):
+    """Least-squares x(t), y(t) lines of hits at frames f: (n, S, (vx, vy), (ex, ey)) with
+    S = sum (f - mean f)^2 and e the residuals, or None with fewer than 3 hits or one frame."""
+    t = f - f.mean()
+    S = float((t * t).sum())
+    if len(f) < 3 or S <= 0:
+        return None
+    vx, vy = float((t * x).sum() / S), float((t * y).sum() / S)
+    return len(f), S, (vx, vy), (x - x.mean() - vx * t, y - y.mean() - vy * t)
+
+
 class ClutterTest:
     """The confirmation test of tentative tracks (module notes).
 
@@ -86,16 +145,24 @@ class ClutterTest:
         A tentative track ends after more than this many consecutive misses.
     learn : int
         Frames before the first confirmation (test 3).
+    motion_p : float
+        The chance, in (0, 1], that a point which stays put passes the significance test
+        of test 1 in its tentative life: each frame's ``still_chance`` must be at most
+        ``motion_p`` / ``window``; 1: no significance test.
     """
 
     def __init__(self, shape, *, false_tracks: float, sigma: float = 1.0,
                  max_speed: float = 16.0, radius: float = 16.0, floor: float = 0.0,
                  window: int = 30, score_floor: float = 0.0, misses: int = 3,
-                 learn: int = 12):
+                 learn: int = 12, motion_p: float = 0.001):
         for name, value in (("false_tracks", false_tracks), ("sigma", sigma),
                             ("max_speed", max_speed), ("radius", radius)):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number, got {value!r}")
+        if not 0 < motion_p <= 1:
+            raise ValueError(f"motion_p must lie in (0, 1], got {motion_p!r}")
+        self.motion_p = float(motion_p)
+        self.still_level = 1.0 if motion_p == 1 else self.motion_p / max(int(window), 1)
         self.area = float(shape[0]) * float(shape[1])
         self.rate = float(false_tracks) / max(int(window), 1)
         self.sigma, self.max_speed = float(sigma), float(max_speed)
@@ -119,9 +186,9 @@ class ClutterTest:
 
         Parameters
         ----------
-        meas : ndarray of shape (n, 5) or (n, 3)
-            The track's hits: frame, x, y (scene coordinates, px) and the camera's offset
-            (x, y px) of the frame (0 when not given).
+        meas : ndarray of shape (n, 3) or (n, more)
+            The track's hits: frame, x, y (scene coordinates, px); further columns are
+            ignored.
         age : int
             Frames since its birth, inclusive (M).
         clutter : int
@@ -132,14 +199,11 @@ class ClutterTest:
         E : float
             Expected clutter tracks as good (module notes).
         moved : float
-            Displacement of the least-squares constant-velocity fit from the first to the
-            last hit, the smaller of that against the scene and that in the image, in
-            units of 3 sqrt(2) sigma (>= 1 passes test 1).
+            Displacement of the least-squares constant-velocity fit against the scene from
+            the first to the last hit, in units of 3 sqrt(2) sigma (>= 1 passes test 1).
         """
         meas = np.asarray(meas, np.float64)
-        if meas.shape[1] == 3:
-            meas = np.column_stack([meas, np.zeros((len(meas), 2))])
-        f, x, y, ox, oy = meas.T
+        f, x, y = meas[:, 0], meas[:, 1], meas[:, 2]
         t = f - f.mean()
         vt = float((t * t).sum())
 
@@ -152,7 +216,6 @@ class ClutterTest:
         e = np.hypot(ex, ey) / self.sigma
         span = float(f.max() - f.min())
         unit = GATE * math.sqrt(2.0) * self.sigma
-        # against the scene and against the image (the sensor's fixed pattern)
         moved = math.hypot(vx, vy) * span / unit
         M = max(int(age), len(meas))
         hits = (e[:, None] <= GATE * np.asarray(LEVELS)[None, :]).sum(axis=0)[None, :]
@@ -165,15 +228,16 @@ class ClutterTest:
         return E, moved
 
     def measure(self, track, frame: int) -> None:
-        """Set a tentative track's ``E``, ``moved`` and ``score`` (the median contrast of
-        its hits: the peaks' local SNR) at ``frame`` (``irdetect.track.tracker.Track``:
-        its ``meas``, ``born`` and ``clutter``)."""
+        """Set a tentative track's ``E``, ``moved``, ``still`` (its ``still_chance``)
+        and ``score`` (the median contrast of its hits: the peaks' local SNR) at ``frame``
+        (``irdetect.track.tracker.Track``: its ``meas``, ``born`` and ``clutter``)."""
         if len(track.meas) < 2:
-            track.E, track.moved = math.inf, 0.0
+            track.E, track.moved, track.still = math.inf, 0.0, 1.0
         else:
             meas = np.array(track.meas)
             track.E, track.moved = self.expectation(meas[:, :5], frame - track.born + 1,
                                                     track.clutter)
+            track.still = still_chance(meas[:, 0], meas[:, 1], meas[:, 2])
         track.score = float(np.median([m[5] for m in track.meas]))
 
     def sample(self, tracks, n_frames: int, min_hits: int) -> np.ndarray | None:
@@ -224,6 +288,7 @@ class ClutterTest:
     def passes(self, track, sample: np.ndarray | None, n_frames: int) -> bool:
         """Whether a measured tentative track passes the three tests after ``n_frames``
         frames (``sample``: that frame's ``ClutterTest.sample``)."""
-        return (track.moved >= 1.0 and track.E <= self.rate
+        return (track.moved >= 1.0 and track.still <= self.still_level
+                and track.E <= self.rate
                 and track.score >= self.level(sample, track.moved, n_frames))
 

@@ -38,6 +38,7 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
           method: str = "fcm-pmht", regions: str = "detector", false_rate: float = 1.0,
           psf: float = 1.0, fraction: float = 0.5, false_tracks: float = 0.001,
           sigma: float = 1.0, max_speed: float = 16.0, learn_frames: int = 12,
+          motion_p: float = 0.001,
           sea_sky: bool = False, band_above: float = 5.0,
           band_below: float = 40.0, suppress_size: int = 15, k: float = 5.0,
           smooth: float = 1.0, tile: int = 32, min_contrast: float = 0.0,
@@ -102,6 +103,9 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     learn_frames : int
         No track is confirmed before this many frames (the clutter sample of the score
         test is too young).
+    motion_p : float
+        A tentative track's motion must be significant at this level against the scatter
+        of its own hits (``irdetect.track.confirm.still_chance``), in (0, 1]; 1: not tested.
     sea_sky : bool
         Find the sea-sky line in every frame and search only the band from ``band_above``
         pixels above it to ``band_below`` pixels below it (maritime scenes; off for sky or
@@ -196,7 +200,7 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
                            max_speed=max_speed, radius=CLUTTER_RADIUS,
                            floor=false_rate / float(h * w) if detector else 0.0,
                            window=confirm_window, score_floor=level,
-                           learn=learn_frames)
+                           learn=learn_frames, motion_p=motion_p)
     common = dict(frame_interval=frame_interval, q0=q0, r=r, gate=gate,
                   confirm_hits=confirm_hits, confirm_window=confirm_window,
                   max_misses=max_misses, max_tracks=max_tracks, init_speed=init_speed,
