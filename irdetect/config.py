@@ -128,6 +128,7 @@ class FrameConfig:
     false_tracks: float = 0.001
     confirm_m: int = 3
     confirm_n: int = 4
+    clutter_speed: float = 1.5
 
 
 @dataclass(frozen=True)

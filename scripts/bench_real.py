@@ -47,6 +47,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime
+import math
 import os
 import sys
 import time
@@ -79,6 +80,8 @@ VARIANTS = (
      {"frame": {"enabled": False}}),
     ("per-frame CFAR at 0.1 false peaks per frame (frame.false_rate)",
      {"frame": {"false_rate": 0.1}}),
+    ("the clutter's score level on every per-frame track (frame.clutter_speed inf, the "
+     "design before)", {"frame": {"clutter_speed": math.inf}}),
     ("no fast band (fast.radius 0: the paper's band only)", {"fast": {"radius": 0}}),
     ("verification screen 0.5 (correlate.screen, the constant before the third round)",
      {"correlate": {"screen": 0.5}}),
@@ -377,6 +380,9 @@ CHOSEN = (
      (0.7, 1.0, 1.5), 1.0),
     ("per-frame clutter tracks per frame (frame.false_tracks)", "config",
      "frame.false_tracks", (0.0003, 0.001, 0.01), 0.001),
+    ("per-frame tracks slower than this meet the clutter's score level, px/frame "
+     "(frame.clutter_speed)", "config", "frame.clutter_speed",
+     (1.0, 1.5, 2.0, 3.0, math.inf), 1.5),
     ("operating point's clutter maxima per frame (operating.false_rate)", "config",
      "operating.false_rate", (0.03, 0.1, 0.3), 0.1),
     ("windows the operating point integrates (pipeline.combined.OPERATING_WINDOWS)",

@@ -379,7 +379,8 @@ def finish(combined: np.ndarray, peaks: np.ndarray, camera: np.ndarray,
                           cc.length, shape=shape, n_frames=n_frames, level=level,
                           false_rate=fc.false_rate, sigma=fc.sigma, max_speed=fc.max_speed,
                           false_tracks=fc.false_tracks,
-                          confirm_m=fc.confirm_m, confirm_n=fc.confirm_n)
+                          confirm_m=fc.confirm_m, confirm_n=fc.confirm_n,
+                          clutter_speed=fc.clutter_speed)
     else:
         ft = tables.empty(tables.FRAME_TRACK)
     # the combined-frame path's operating point (``irdetect.operating``; -inf: none)
