@@ -161,8 +161,7 @@ class ClutterTest:
                 raise ValueError(f"{name} must be a positive number, got {value!r}")
         if not 0 < motion_p <= 1:
             raise ValueError(f"motion_p must lie in (0, 1], got {motion_p!r}")
-        self.motion_p = float(motion_p)
-        self.still_level = 1.0 if motion_p == 1 else self.motion_p / max(int(window), 1)
+        self.still_level = 1.0 if motion_p == 1 else float(motion_p) / max(int(window), 1)
         self.area = float(shape[0]) * float(shape[1])
         self.rate = float(false_tracks) / max(int(window), 1)
         self.sigma, self.max_speed = float(sigma), float(max_speed)
