@@ -86,31 +86,34 @@ def test_tail_threshold_follows_the_clutter_sample():
         tail_threshold(clutter, 100, 0.0, floor=5.0)
 
 
-def _moving_blob_peaks(n_frames, start, velocity, amplitude, shape, rng):
-    """Peaks of standardised noise frames with a blob moving from ``start``."""
+def _blob_peaks(n_frames, blobs, shape, rng):
+    """Peaks of standardised noise frames with blobs (x0, y0, vx, vy, amplitude) moving
+    from (x0, y0) at (vx, vy) px/frame."""
     h, w = shape
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
     frames = []
     for t in range(n_frames):
-        x, y = start[0] + velocity[0] * t, start[1] + velocity[1] * t
         f = rng.normal(0, 1, shape).astype(np.float32)
-        f += amplitude * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / 2.0).astype(np.float32)
+        for x0, y0, vx, vy, amplitude in blobs:
+            x, y = x0 + vx * t, y0 + vy * t
+            f += amplitude * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / 2.0).astype(np.float32)
         frames.append(f)
     return frame_peaks(frames, frame_level(shape, 1.0))
 
 
-def _tracks(peaks, shape, pan=0.0):
-    """``frame_tracks`` over 3 windows of 12 frames, the camera panning ``pan`` px/frame in x."""
+def _tracks(peaks, shape, pan=0.0, **kw):
+    """``frame_tracks`` over 3 windows of 12 frames, the camera panning ``pan`` px/frame in x
+    (``kw``: more of its keywords)."""
     camera = tables.from_columns(tables.CAMERA, frame=np.arange(36), dx=pan * np.arange(36),
                                  dy=np.zeros(36))
     return frame_tracks(peaks, camera, [0, 12, 24], 12, shape=shape, n_frames=36,
-                        level=frame_level(shape, 1.0))
+                        level=frame_level(shape, 1.0), **kw)
 
 
 def test_the_per_frame_path_alone_tracks_a_fast_target_and_not_the_noise():
     rng = np.random.default_rng(5)
     shape = (128, 256)
-    peaks = _moving_blob_peaks(36, (20.0, 30.0), (6.0, 2.0), 9.0, shape, rng)
+    peaks = _blob_peaks(36, [(20.0, 30.0, 6.0, 2.0, 9.0)], shape, rng)
     ft = _tracks(peaks, shape)
     kept = ft[ft["kept"]]
     assert sorted(kept["combined_frame"]) == [0, 1, 2]
@@ -130,7 +133,7 @@ def test_the_per_frame_path_alone_tracks_a_fast_target_and_not_the_noise():
 def test_structure_that_stays_put_in_the_scene_is_not_a_per_frame_track():
     rng = np.random.default_rng(6)
     shape = (96, 96)
-    ft = _tracks(_moving_blob_peaks(36, (40.0, 50.0), (0.0, 0.0), 12.0, shape, rng), shape)
+    ft = _tracks(_blob_peaks(36, [(40.0, 50.0, 0.0, 0.0, 12.0)], shape, rng), shape)
     assert len(ft) >= 3 and not ft["moving"].any() and not ft["kept"].any()
 
 
@@ -141,26 +144,16 @@ def test_a_fast_target_no_brighter_than_static_clutter_is_judged_by_its_chain():
     # fast one is kept on its chain (its 12 hits on a line)
     rng = np.random.default_rng(0)
     shape = (128, 256)
-    yy, xx = np.mgrid[0:128, 0:256].astype(np.float32)
     sx, sy, amp = rng.uniform(10, 246, 24), rng.uniform(10, 118, 24), rng.uniform(8, 16, 24)
-    frames = []
-    for t in range(36):
-        f = rng.normal(0, 1, shape).astype(np.float32)
-        for x, y, a in [*zip(sx, sy, amp), (20 + 6.0 * t, 40 + 1.0 * t, 9.0),
-                        (100 + 0.8 * t, 100.0, 9.0)]:
-            f += a * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / 2.0).astype(np.float32)
-        frames.append(f)
-    peaks = frame_peaks(frames, frame_level(shape, 1.0))
+    static = [(x, y, 0.0, 0.0, a) for x, y, a in zip(sx, sy, amp)]
+    peaks = _blob_peaks(36, static + [(20.0, 40.0, 6.0, 1.0, 9.0), (100.0, 100.0, 0.8, 0.0, 9.0)],
+                        shape, rng)
     ft = _tracks(peaks, shape)
     speed = np.hypot(ft["svx"], ft["svy"])
     fast, slow = np.abs(speed - 6.08) < 0.3, np.abs(speed - 0.8) < 0.3
     assert ft["kept"][fast].sum() == 3 and not ft["kept"][~fast].any()
     assert (ft["moving"][slow] & (ft["expectation"][slow] < 0.012)).any()  # tests 1-2 pass
-    camera = tables.from_columns(tables.CAMERA, frame=np.arange(36), dx=np.zeros(36),
-                                 dy=np.zeros(36))
-    every = frame_tracks(peaks, camera, [0, 12, 24], 12, shape=shape, n_frames=36,
-                         level=frame_level(shape, 1.0), clutter_speed=np.inf)
-    assert not every["kept"].any()                 # the level on every track: lost
+    assert not _tracks(peaks, shape, clutter_speed=np.inf)["kept"].any()   # all lost                 # the level on every track: lost
 
 
 def _det(x, y, k, path=tables.PATH_COMBINED, snr=5.0):

@@ -23,7 +23,7 @@ scene. A window's track is kept when
    scores of the tracks that stay put in the scene: they are clutter by 1's definition,
    and a moving target cannot be among them). Structure fixed in the scene seen through
    the camera's registration error or parallax, or a peak sliding along an edge, moves
-   slowly against the scene (0.4-1.4 px/frame on the real panning clips) and passes
+   slowly against the scene (0.4-1.4 px/frame on the real istd640 clips) and passes
    tests 1 and 2 on its persistence; a target faster than that is judged by its chain
    (test 2) alone: at the level of the brightest static residue a target no brighter
    than the clouds it crosses was lost however straight its 12 hits

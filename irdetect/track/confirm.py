@@ -18,8 +18,8 @@ A tentative track (``irdetect.track.tracker``) is confirmed only when
    frame of a tentative life, as test 2's). A centroid that wanders over a bright
    structure can drift the 3 sqrt(2) sigma of the first test (istd640-seq1-243's
    clutter-only crop: 4.6 px in 8 hits scattered 1.4 px about their line, chance 0.005),
-   a target's hits lie on their line (the real folders' targets: chance < 1e-10 at
-   confirmation);
+   a target's hits lie on their line (the real folders' targets, a scratch measurement:
+   chance < 1e-10 at confirmation);
 2. clutter of the density measured around it would make at most ``false_tracks`` tracks
    per frame as good anywhere in the frame: the scans clutter test of
    ``irdetect.initiate.clutter`` (``chain_expectation``), E = H J min_j B(n_j; M, p(g_j))
@@ -93,15 +93,17 @@ def still_chance(frame: np.ndarray, x: np.ndarray, y: np.ndarray) -> float:
         exactly on a moving line.
     """
     f, x, y = (np.asarray(a, np.float64) for a in (frame, x, y))
-    fit = _line(f, x, y)
-    if fit is None:
+    if len(f) < 3 or np.ptp(f) == 0:
         return 1.0
-    e = np.hypot(*fit[3])
+    _, _, ex, ey = _line(f, x, y)
+    e = np.hypot(ex, ey)
     keep = e <= 3.0 * np.median(e)
-    fit = _line(f[keep], x[keep], y[keep])
-    if fit is None:
+    f, x, y = f[keep], x[keep], y[keep]
+    n = len(f)
+    if n < 3 or np.ptp(f) == 0:
         return 1.0
-    n, S, (vx, vy), (ex, ey) = fit
+    vx, vy, ex, ey = _line(f, x, y)
+    S = float(((f - f.mean()) ** 2).sum())
     s2 = float((ex * ex + ey * ey).sum()) / (2 * (n - 2))
     motion = (vx * vx + vy * vy) * S / 2
     if s2 <= 0:
@@ -110,14 +112,17 @@ def still_chance(frame: np.ndarray, x: np.ndarray, y: np.ndarray) -> float:
 
 
 def _line(f, x, y):
-    """Least-squares x(t), y(t) lines of hits at frames f: (n, S, (vx, vy), (ex, ey)) with
-    S = sum (f - mean f)^2 and e the residuals, or None with fewer than 3 hits or one frame."""
+    """The least-squares constant-velocity fit x(t), y(t) of hits at frames ``f``:
+    velocity (vx, vy), px/frame (0 when all hits share one frame), and the residuals
+    ex, ey (px) of every hit."""
     t = f - f.mean()
-    S = float((t * t).sum())
-    if len(f) < 3 or S <= 0:
-        return None
-    vx, vy = float((t * x).sum() / S), float((t * y).sum() / S)
-    return len(f), S, (vx, vy), (x - x.mean() - vx * t, y - y.mean() - vy * t)
+    vt = float((t * t).sum())
+
+    def slope(v):
+        return float((t * (v - v.mean())).sum() / vt) if vt > 0 else 0.0
+
+    vx, vy = slope(x), slope(y)
+    return vx, vy, x - (x.mean() + vx * t), y - (y.mean() + vy * t)
 
 
 class ClutterTest:
@@ -202,16 +207,8 @@ class ClutterTest:
             the first to the last hit, in units of 3 sqrt(2) sigma (>= 1 passes test 1).
         """
         meas = np.asarray(meas, np.float64)
-        f, x, y = meas[:, 0], meas[:, 1], meas[:, 2]
-        t = f - f.mean()
-        vt = float((t * t).sum())
-
-        def slope(v):
-            return float((t * (v - v.mean())).sum() / vt) if vt > 0 else 0.0
-
-        vx, vy = slope(x), slope(y)
-        ex = x - (x.mean() + vx * t)
-        ey = y - (y.mean() + vy * t)
+        f = meas[:, 0]
+        vx, vy, ex, ey = _line(f, meas[:, 1], meas[:, 2])
         e = np.hypot(ex, ey) / self.sigma
         span = float(f.max() - f.min())
         unit = GATE * math.sqrt(2.0) * self.sigma
@@ -234,7 +231,7 @@ class ClutterTest:
             track.E, track.moved, track.still = math.inf, 0.0, 1.0
         else:
             meas = np.array(track.meas)
-            track.E, track.moved = self.expectation(meas[:, :5], frame - track.born + 1,
+            track.E, track.moved = self.expectation(meas, frame - track.born + 1,
                                                     track.clutter)
             track.still = still_chance(meas[:, 0], meas[:, 1], meas[:, 2])
         track.score = float(np.median([m[5] for m in track.meas]))
