@@ -196,6 +196,7 @@ class TrackConfig:
     max_speed: float = 16.0
     learn_frames: int = 12
     motion_p: float = 0.001
+    guided_rate: float = 0.01
     sea_sky: bool = False
     band_above: float = 5.0
     band_below: float = 40.0

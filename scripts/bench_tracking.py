@@ -72,7 +72,8 @@ FIRST_ROUND = dict(ISSUE17, k=4.0, smooth=0.0, tile=0)
 #: 28), reported leave-one-out: the matched filter's sigma, the frames before the first
 #: confirmation and the motion's significance level (the defaults first)
 REAL_GRID = ([dict(psf=p, learn_frames=n) for p in (1.0, 0.6) for n in (12, 0)]
-             + [dict(motion_p=m) for m in (0.01, 1.0)])
+             + [dict(motion_p=m) for m in (0.01, 1.0)]
+             + [dict(guided_rate=g) for g in (0.0, 0.1)])
 #: the clutter-only crops are also tracked without the motion's significance test
 NO_SIGNIFICANCE = dict(motion_p=1.0)
 #: px: a clutter-only crop keeps this far from the target's whole path
@@ -313,12 +314,14 @@ At the goal (MOTA >= 0.8 and IDF1 >= 0.8, the defaults): {sum(_at_goal(g) for g 
 
 ### Leave-one-out of the settings chosen on the real folders
 
-While the per-frame detector's regions were built (issue 28) three settings were chosen by
+While the per-frame detector's regions were built (issue 28) four settings were chosen by
 looking at these folders: the matched filter's sigma `psf` (1.0 px, issue 17's `smooth`,
 the default; against 0.6 px, `irdetect process`'s), `learn_frames` (12: no confirmation before the
 sequence's clutter sample is 12 frames old; 0: from the first frame) and `motion_p` (0.001:
 a tentative track's motion significant against its hits' scatter; 0.01, and 1: no such
-test; the level was looked at on the clutter-only crops below). Each folder's row
+test; the level was looked at on the clutter-only crops below), and `guided_rate` (0.01:
+a confirmed track's gate searched at the level white noise reaches 0.01 times per frame in
+it; 0: not searched, 0.1; written after looking at istd640-seq1-243). Each folder's row
 takes the setting of this grid that puts the most *other* folders at the goal (ties: the
 higher mean MOTA over them), so its figures are on a folder the setting was not chosen on.
 Two rules without a setting of their own were also written after looking at these folders

@@ -44,7 +44,7 @@ from typing import Iterator
 import cv2
 import numpy as np
 
-from irdetect.peaks import frame_peaks
+from irdetect.peaks import RING_PX, frame_peaks
 from irdetect.suppress import (camera_moves, future_frames, past_frames,
                                prefer_registered, suppress)
 from irdetect.track.regions import REGION
@@ -248,3 +248,58 @@ def peak_regions(matched: np.ndarray, k: float, *, fraction: float = 0.5,
     out["bx"], out["by"] = stats[ids, cv2.CC_STAT_LEFT], stats[ids, cv2.CC_STAT_TOP]
     out["bw"], out["bh"] = stats[ids, cv2.CC_STAT_WIDTH], stats[ids, cv2.CC_STAT_HEIGHT]
     return out[np.argsort(-out["contrast"], kind="stable")]
+
+
+def guided_regions(matched: np.ndarray, found: np.ndarray, centres: np.ndarray, k: float, *,
+                   radius: float, fraction: float = 0.5) -> np.ndarray:
+    """Regions of the peaks at the lower level ``k`` within ``radius`` px of ``centres``
+    that ``found`` lacks: a confirmed track's gate searched below the frame's CFAR level
+    (beyond Cheng et al.; ``irdetect.track.pipeline.GUIDED_RATE``).
+
+    A frame's level keeps white noise to about one peak per frame over all its H W pixels;
+    a confirmed track needs only the disc about its prediction, where the same noise
+    reaches a far lower level as rarely (``irdetect.peaks.cfar_level`` of the disc's
+    pixels). A target that fades below the frame's level for a while (a dim target over
+    a brighter background, istd640-seq1-243) still feeds its track there.
+
+    Parameters
+    ----------
+    matched : ndarray of shape (H, W)
+        The matched, standardised frame (``detector_blocks``).
+    found : ndarray of dtype REGION
+        The regions the frame's own level gave (image px).
+    centres : ndarray of shape (n, 2)
+        The confirmed tracks' predicted positions (x, y) in the image, px.
+    k : float
+        The lower level (local SNR).
+    radius : float
+        Px about a centre searched.
+    fraction : float
+        As ``peak_regions``.
+
+    Returns
+    -------
+    ndarray of dtype REGION
+        The new regions (image px), none within ``radius`` of a centre that ``found``
+        already has a region near.
+    """
+    m = np.asarray(matched, np.float32)
+    h, w = m.shape
+    reach = int(np.ceil(radius + RING_PX + 2))      # the point test's ring stays inside
+    parts = []
+    for cx, cy in np.asarray(centres, float).reshape(-1, 2):   # the confirmed tracks
+        if len(found) and np.hypot(found["x"] - cx, found["y"] - cy).min() <= radius:
+            continue
+        if not (np.isfinite(cx) and np.isfinite(cy)):
+            continue
+        x0, y0 = max(0, int(cx) - reach), max(0, int(cy) - reach)
+        x1, y1 = min(w, int(cx) + reach + 1), min(h, int(cy) + reach + 1)
+        if x1 - x0 < 3 or y1 - y0 < 3:
+            continue
+        r = peak_regions(m[y0:y1, x0:x1], k, fraction=fraction, max_peaks=4)
+        r["x"] += x0
+        r["y"] += y0
+        r["bx"] += x0
+        r["by"] += y0
+        parts.append(r[np.hypot(r["x"] - cx, r["y"] - cy) <= radius][:1])
+    return np.concatenate(parts) if parts else np.zeros(0, REGION)

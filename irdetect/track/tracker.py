@@ -108,8 +108,15 @@ class _TrackerBase:
         self._next_id = 1
 
     # -- the frame step ------------------------------------------------------------------
+    def predicted(self) -> np.ndarray:
+        """Where the confirmed tracks will be in the next ``step``'s frame: their predicted
+        positions (n, 2) = (x, y) px, in the coordinates of the regions (scene coordinates
+        when the regions are)."""
+        pos = [self.F @ t.x for t in self.tracks if t.confirmed and not t.dead]
+        return np.array([[p[0], p[2]] for p in pos]).reshape(-1, 2)
+
     def step(self, frame: int, regions: np.ndarray, shape: tuple[int, int],
-             offset=(0.0, 0.0)) -> np.ndarray:
+             offset=(0.0, 0.0), seeds: np.ndarray | None = None) -> np.ndarray:
         """Advance all tracks by one frame.
 
         Parameters
@@ -124,6 +131,10 @@ class _TrackerBase:
             The camera's offset (x, y px) of this frame when the regions and tracks are in
             scene coordinates (image minus offset, ``irdetect.camera``); the image's bounds
             are then shifted by it. (0, 0): image coordinates.
+        seeds : ndarray of bool, shape (len(regions),), optional
+            The regions that may start a track and count as this frame's clutter (default
+            all); the others (peaks found below the frame's level near a confirmed track's
+            prediction, ``irdetect.track.detector.guided_regions``) only feed tracks.
 
         Returns
         -------
@@ -149,10 +160,11 @@ class _TrackerBase:
                 self._end(t)
         self.tracks = alive
         z = np.column_stack([regions["x"], regions["y"]]) if len(regions) else np.zeros((0, 2))
+        seeds = np.ones(len(z), bool) if seeds is None else np.asarray(seeds, bool)
         assign, shared, blocked = self._associate(regions, z)
         if self.confirm is not None:
-            self._count_clutter(z, assign)
-            self.confirm.observe(len(z))
+            self._count_clutter(z, assign, seeds)
+            self.confirm.observe(int(seeds.sum()))
         for i, t in enumerate(list(self.tracks)):
             rows = assign[i]
             if i in shared:
@@ -175,7 +187,7 @@ class _TrackerBase:
                 t.merged = 0
                 self._record(t, frame, None, out, coasting=True)
         self._manage(frame, out)
-        self._births(frame, regions, z, blocked)
+        self._births(frame, regions, z, blocked | ~seeds)
         return _points(out)
 
     def finish(self) -> np.ndarray:
@@ -343,10 +355,12 @@ class _TrackerBase:
                           + (float(reg["contrast"]),))
             self.tracks.append(t)
 
-    def _count_clutter(self, z: np.ndarray, assign) -> None:
-        """Add to every tentative track the regions of this frame within the clutter
-        test's radius of its prediction that it did not take (the local clutter)."""
+    def _count_clutter(self, z: np.ndarray, assign, seeds: np.ndarray) -> None:
+        """Add to every tentative track the regions of this frame (``seeds``: those found
+        at the frame's level) within the clutter test's radius of its prediction that it
+        did not take (the local clutter)."""
         tent = [i for i, t in enumerate(self.tracks) if not t.confirmed]
+        z = z[seeds]
         if not tent or not len(z):
             return
         pred = np.array([[self.tracks[i].x[0], self.tracks[i].x[2]] for i in tent])
