@@ -151,6 +151,25 @@ def test_target_jumping_out_of_its_gate_keeps_its_id():
     assert len(np.unique(points["track_id"])) == 1
 
 
+def test_a_target_restarted_while_tentative_keeps_its_first_hits():
+    # easy3's shaking camera: the target jumps 5 px at frame 3, out of its tentative track's
+    # gate; the track born there is confirmed and takes the lapsed one's hits of frames
+    # 0-2 (it started at frame 3: 37 of 40 frames)
+    g = np.random.default_rng(0)
+    n, h, w = 40, 96, 128
+    frames = g.normal(100, 3, (n, h, w)).astype(np.float32)
+    truth = np.zeros(n, [("frame", "<i8"), ("target", "<i8"), ("x", "<f8"), ("y", "<f8"),
+                         ("amplitude", "<f8")])
+    for t in range(n):
+        x, y = 20 + 0.8 * t + (5.0 if t >= 3 else 0.0), 40 + 0.3 * t
+        frames[t] += _blob((h, w), x, y, 1.0, 1.0, 30.0).astype(np.float32)
+        truth[t] = (t, 0, x, y, 30.0)
+    points, tracks = track(frames)
+    r = clear_mot(truth, points, gate=3.0)
+    assert len(tracks) == 1 and r["matches"] == n and r["fp"] == 0
+    assert tracks["frame_start"][0] == 0 and tracks["n_points"][0] == n
+
+
 def _clutter_sample(rng, n, score_scale, moved):
     """n clutter tracks' (score, displacement): scores 5 + an exponential tail."""
     return np.column_stack([5.0 + rng.exponential(score_scale, n), moved(n)])

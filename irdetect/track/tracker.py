@@ -22,7 +22,7 @@ interval). Output rows are :data:`irdetect.tables.TRACK_POINT`; summaries
 from __future__ import annotations
 
 import math
-
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -104,6 +104,8 @@ class _TrackerBase:
         self.confirm = confirm
         self.tracks: list[Track] = []
         self._ended: list[Track] = []
+        # tentative tracks that ended unconfirmed, the latest ``max_tracks``
+        self._lapsed: deque[Track] = deque(maxlen=self.max_tracks)
         self._offset = (0.0, 0.0)         # the camera's offset of the frame being stepped
         self._next_id = 1
 
@@ -300,7 +302,10 @@ class _TrackerBase:
         """A newly confirmed track born while a confirmed track coasts near its first hit
         takes that track's id and history (the clutter-tested confirmation only): the
         target jumped out of the old track's gate (a camera jump the offsets missed, a
-        centroid that moved) and the old track would end with an id switch.
+        centroid that moved) and the old track would end with an id switch. Failing that,
+        a tentative track that ended unconfirmed near its first hit gives it its hits: the
+        target's first hits, before a jump of the same kind restarted it (easy3's shaking
+        camera: 3 frames), are the new track's first points.
 
         Near: the old track, extrapolated back from ``frame`` at its velocity to the new
         track's first hit, is within the confirmation's ``radius`` px of it, and it was
@@ -308,31 +313,48 @@ class _TrackerBase:
         if not t.meas:
             return
         f0, x0, y0 = t.meas[0][:3]
+        best = self._before(t, f0, x0, y0, [
+            o for o in self.tracks + self._ended[-self.max_tracks:]
+            if o is not t and o.confirmed and not o.dead and o.misses > 0])
+        if best is not None:
+            t.track_id = best.track_id
+            t.pending = [(p[0], best.track_id) + tuple(p[2:]) for p in t.pending]
+            t.sums = best.sums.copy()
+            t.first_frame = best.first_frame
+            if best in self._ended:
+                self._ended.remove(best)
+            best.confirmed = False          # ends with no summary of its own
+            best.dead = True
+            return
+        best = self._before(t, f0, x0, y0, self._lapsed)
+        if best is not None:
+            self._lapsed.remove(best)
+            t.pending = [(p[0], t.track_id) + tuple(p[2:]) for p in best.pending] + t.pending
+
+    def _before(self, t: Track, f0: int, x0: float, y0: float, tracks) -> Track | None:
+        """Of ``tracks``, the one last hit before ``t``'s birth, at most ``max_misses`` + 1
+        frames before ``t``'s first hit (frame ``f0`` at x0, y0), whose extrapolation to
+        ``f0`` lies nearest to it within the confirmation's radius (None: none)."""
         best, dist = None, self.confirm.radius
-        for o in self.tracks + self._ended[-self.max_tracks:]:
-            if (o is t or not o.confirmed or o.dead or o.misses == 0 or o.last_hit >= t.born
-                    or f0 - o.last_hit > self.max_misses + 1):
+        for o in tracks:
+            if o.last_hit >= t.born or f0 - o.last_hit > self.max_misses + 1:
                 continue
             # its state is predicted to the frame of its last miss
             back = o.last_hit + o.misses - f0
             d = math.hypot(o.x[0] - o.x[1] * back - x0, o.x[2] - o.x[3] * back - y0)
             if d <= dist:
                 best, dist = o, d
-        if best is None:
-            return
-        t.track_id = best.track_id
-        t.pending = [(p[0], best.track_id) + tuple(p[2:]) for p in t.pending]
-        t.sums = best.sums.copy()
-        t.first_frame = best.first_frame
-        if best in self._ended:
-            self._ended.remove(best)
-        best.confirmed = False          # ends with no summary of its own
-        best.dead = True
+        return best
 
     def _end(self, t: Track) -> None:
-        t.pending = []
         if t.confirmed:
             self._ended.append(t)
+        elif self.confirm is not None and not t.dead:
+            # its measured points up to its last hit, for a successor (``_succeed``)
+            t.pending = [p for p in t.pending if p[0] <= t.last_hit]
+            self._lapsed.append(t)
+            return
+        t.pending = []
 
     def _births(self, frame: int, regions: np.ndarray, z: np.ndarray, blocked: np.ndarray) -> None:
         free = np.flatnonzero(~blocked & (regions["area"] <= self.max_birth_area))
