@@ -254,7 +254,7 @@ def guided_regions(matched: np.ndarray, found: np.ndarray, centres: np.ndarray, 
                    radius: float, fraction: float = 0.5) -> np.ndarray:
     """Regions of the peaks at the lower level ``k`` within ``radius`` px of ``centres``
     that ``found`` lacks: a confirmed track's gate searched below the frame's CFAR level
-    (beyond Cheng et al.; ``irdetect.track.pipeline.GUIDED_RATE``).
+    (beyond Cheng et al.; ``guided_rate`` of ``irdetect.track.track``).
 
     A frame's level keeps white noise to about one peak per frame over all its H W pixels;
     a confirmed track needs only the disc about its prediction, where the same noise

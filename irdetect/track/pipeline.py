@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import math
 from typing import Callable
 
 import numpy as np
@@ -10,8 +11,6 @@ from tqdm import tqdm
 
 from irdetect import tables
 from irdetect.io.sources import FrameSource, check_values
-import math
-
 from irdetect.peaks import STANDARDISE_ERROR, cfar_level, frame_level
 from irdetect.track.confirm import ClutterTest
 from irdetect.track.detector import detector_blocks, guided_regions, peak_regions
@@ -194,7 +193,7 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     if not 0 < fraction <= 1:
         raise ValueError(f"fraction must lie in (0, 1], got {fraction!r}")
     detector = regions == "detector"
-    level = 0.0
+    level, guided = 0.0, None
     if detector:
         if tile < 1 or int(tile) != tile:
             raise ValueError(f"tile must be an int >= 1 with regions = 'detector', got {tile!r}")
