@@ -197,6 +197,7 @@ class TrackConfig:
     learn_frames: int = 12
     motion_p: float = 0.001
     guided_rate: float = 0.01
+    min_shape: float = 0.35
     sea_sky: bool = False
     band_above: float = 5.0
     band_below: float = 40.0

@@ -196,7 +196,8 @@ def test_track_on_frames_streams_and_windows_do_not_matter():
     ({"gate": 0.0}, "gate must be > 0"), ({"beta": 1.0}, "beta must be in"),
     ({"confirm_hits": 31}, "confirm_hits"), ({"suppress_size": 4}, "suppress_size"),
     ({"min_area": 400.0}, "min_area"), ({"sea_sky": True, "band_below": -1.0}, "band_above"),
-    ({"guided_rate": -0.1}, "guided_rate must be a number >= 0")])
+    ({"guided_rate": -0.1}, "guided_rate must be a number >= 0"),
+    ({"min_shape": 1.5}, "min_shape must lie in")])
 def test_bad_parameters_are_named(kwargs, match):
     with pytest.raises(ValueError, match=match):
         track(np.zeros((2, 30, 30)), **kwargs)

@@ -170,6 +170,25 @@ def test_a_target_restarted_while_tentative_keeps_its_first_hits():
     assert tracks["frame_start"][0] == 0 and tracks["n_points"][0] == n
 
 
+@pytest.mark.parametrize("rng", [0, 1])
+def test_a_line_is_no_track_a_point_beside_it_is(rng):
+    # a bright bar (sigma 4 x 0.6 px) moving across itself, as an edge's residue moves
+    # under a pan: its regions (shape ~0.3, short enough for the point test's 4-px ring)
+    # are lines and start no track; the point target beside it keeps its track
+    g = np.random.default_rng(rng)
+    n, h, w = 60, 96, 128
+    frames = g.normal(100, 2, (n, h, w)).astype(np.float32)
+    for t in range(n):
+        frames[t] += _blob((h, w), 40, 20 + 0.8 * t, 4.0, 0.6, 30.0).astype(np.float32)
+        frames[t] += _blob((h, w), 30 + 0.6 * t, 70 - 0.3 * t, 1.0, 1.0, 30.0).astype(
+            np.float32)
+    tracks = track(frames)[1]
+    assert len(tracks) == 1
+    assert (tracks["x0"][0], tracks["y0"][0]) == (pytest.approx(30, abs=1),
+                                                  pytest.approx(70, abs=1))
+    assert len(track(frames, min_shape=0.0)[1]) == 2
+
+
 def _clutter_sample(rng, n, score_scale, moved):
     """n clutter tracks' (score, displacement): scores 5 + an exponential tail."""
     return np.column_stack([5.0 + rng.exponential(score_scale, n), moved(n)])

@@ -34,6 +34,9 @@ CLUTTER_RADIUS = 16.0
 #: px: a confirmed track that the frame's regions miss is looked for within this radius of
 #: its prediction at the level ``guided_rate`` sets (``irdetect.track.detector.guided_regions``)
 GUIDED_PX = 4.0
+#: px: the detector's regions this large or larger are measured for their shape
+#: (``min_shape``); a smaller one's second moments say little (a 1 x 2 px region has shape 0)
+LINE_AREA = 6
 
 
 def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bool = False,
@@ -42,7 +45,7 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
           method: str = "fcm-pmht", regions: str = "detector", false_rate: float = 1.0,
           psf: float = 1.0, fraction: float = 0.5, false_tracks: float = 0.001,
           sigma: float = 1.0, max_speed: float = 16.0, learn_frames: int = 12,
-          motion_p: float = 0.001, guided_rate: float = 0.01,
+          motion_p: float = 0.001, guided_rate: float = 0.01, min_shape: float = 0.35,
           sea_sky: bool = False, band_above: float = 5.0,
           band_below: float = 40.0, suppress_size: int = 15, k: float = 5.0,
           smooth: float = 1.0, tile: int = 32, min_contrast: float = 0.0,
@@ -116,6 +119,12 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
         per frame in that disc (3.6 local sigmas at 0.01, against the frame's 4.2-4.6 at
         ``false_rate`` 1); what is found there feeds tracks but starts none. 0: off (the
         frame's level alone, as before).
+    min_shape : float
+        The detector's regions of ``LINE_AREA`` px or more whose shape (sqrt(l2 / l1) of
+        their second moments, ``irdetect.track.detector.peak_regions``) is under this are
+        lines, not points (an edge's residue under a pan, a roof's rim), and are dropped: a
+        point source's half-maximum region is round (0.9-1), two that touch (a merge) make one
+        of 0.47 or more (PSF sigma 1 px, until their regions part); 0: every region kept.
     sea_sky : bool
         Find the sea-sky line in every frame and search only the band from ``band_above``
         pixels above it to ``band_below`` pixels below it (maritime scenes; off for sky or
@@ -198,6 +207,8 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
         if tile < 1 or int(tile) != tile:
             raise ValueError(f"tile must be an int >= 1 with regions = 'detector', got {tile!r}")
         level = frame_level((h, w), false_rate)         # checks false_rate
+        if not 0 <= min_shape <= 1:
+            raise ValueError(f"min_shape must lie in [0, 1], got {min_shape!r}")
         if not (np.isfinite(guided_rate) and guided_rate >= 0):
             raise ValueError(f"guided_rate must be a number >= 0, got {guided_rate!r}")
         disc = max(1, int(math.pi * GUIDED_PX ** 2))
@@ -270,12 +281,13 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
                 seeds = None
                 if detector:
                     regs = _gated(peak_regions(frame, level, fraction=fraction,
-                                               max_peaks=max_regions), region_kw)
+                                               max_peaks=max_regions), region_kw, min_shape)
                     o = offsets[start + j]
                     if guided is not None:
                         more = _gated(guided_regions(frame, regs, tracker.predicted() + o,
                                                      guided, radius=GUIDED_PX,
-                                                     fraction=fraction), region_kw)
+                                                     fraction=fraction),
+                                      region_kw, min_shape)
                         seeds = np.arange(len(regs) + len(more)) < len(regs)
                         regs = np.concatenate([regs, more])
                     regs = _to_scene(regs, o)
@@ -302,11 +314,12 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     return points, summary
 
 
-def _gated(regs: np.ndarray, kw: dict) -> np.ndarray:
+def _gated(regs: np.ndarray, kw: dict, min_shape: float) -> np.ndarray:
     """The detector's regions within the area gate [min_area, max_area] and the grey
-    interval [min_grey, max_grey] (grey: local SNR)."""
+    interval [min_grey, max_grey] (grey: local SNR), less the lines (``min_shape``)."""
     keep = ((regs["area"] >= kw["min_area"]) & (regs["area"] <= kw["max_area"])
-            & (regs["grey"] >= kw["min_grey"]) & (regs["grey"] <= kw["max_grey"]))
+            & (regs["grey"] >= kw["min_grey"]) & (regs["grey"] <= kw["max_grey"])
+            & ((regs["area"] < LINE_AREA) | (regs["shape"] >= min_shape)))
     return regs[keep]
 
 
