@@ -2,7 +2,8 @@
 
 Candidate regions of every frame (by default the per-frame detector of process: the
 suppressed residual with the camera's motion, the PSF's matched filter, CFAR peaks on the
-local noise and each peak's half-maximum region; the maritime and paper profiles: a
+local noise and each peak's half-maximum region, less those shaped like lines, and a
+confirmed track's gate searched again at a lower level; the maritime and paper profiles: a
 top-hat, a CFAR threshold, connected components, optionally only near the sea-sky line)
 are associated to the tracks by fuzzy c-means memberships and followed by a
 constant-velocity filter with adaptive process noise (Cheng et al.; docs/tracking.md), or
