@@ -175,7 +175,9 @@ class _Reference(NamedTuple):
     ``offset`` (2,) its camera offset; ``spectrum`` of its reduced frame; ``box`` (x, y)
     of its full-resolution crop and ``crop`` that crop's ``_Gradients`` (None when the
     frame is not reduced twice or more); ``reduced`` its reduced frame's ``_Gradients``;
-    ``textured`` whether it has anything to register on (``textured``).
+    ``textured`` whether it has anything to register on (``textured``); ``profile`` its
+    profile across a lone straight edge (``_Profile``; None unless ``lone_edge`` finds
+    one).
     """
 
     offset: np.ndarray
@@ -184,6 +186,7 @@ class _Reference(NamedTuple):
     crop: "_Gradients | None" = None
     reduced: "_Gradients | None" = None
     textured: bool = True
+    profile: "_Profile | None" = None
 
 
 class CameraMotion:
@@ -270,8 +273,9 @@ class CameraMotion:
         if not np.isfinite(reduced).all() or reduced.std() <= 0:
             return self.last.copy()
         if self.key is not None and not self.key.textured:
-            # a featureless keyframe: only a textured frame can become the next one
-            if not textured(reduced):
+            # a featureless keyframe: only a textured frame (or a lone edge) can become
+            # the next one
+            if not (textured(reduced) or lone_edge(reduced, self.levels) is not None):
                 return self.last.copy()
             self.key = None
         small = self.coarse.spectrum(reduced)
@@ -282,10 +286,12 @@ class CameraMotion:
                 self.last = self.key.offset + d
                 if np.abs(d).max() > self.limit:
                     self.key = None
-            elif self.previous is not None:
+            elif self.previous is not None and self.key.profile is None:
                 # a weak match against the keyframe (too little overlap left, a blurred
                 # jump): one coarse step from the previous frame, and this frame is the
-                # next keyframe; when that fails too (a featureless frame) nothing moves
+                # next keyframe; when that fails too (a featureless frame) nothing moves.
+                # Not after a lone edge's keyframe: phase correlation's peak lies anywhere
+                # along the edge (the offset is held, and this frame is the next keyframe)
                 d = self._match(self.previous, small, None, reduced)
                 if d is not None:
                     self.last = self.previous.offset + d
@@ -298,6 +304,11 @@ class CameraMotion:
     def _key(self, frame, small, reduced) -> _Reference:
         """A new keyframe at this frame (``reduced``: it reduced, ``small``: that one's
         spectrum)."""
+        normal = lone_edge(reduced, self.levels)
+        if normal is not None:
+            # only the shift across the edge can be measured (``textured`` may not see it:
+            # with most of the frame on one side the frame's spread is its noise's)
+            return _Reference(self.last.copy(), small, profile=_Profile(reduced, normal))
         if not textured(reduced):
             return _Reference(self.last.copy(), small, textured=False)
         lk = _Gradients(reduced)
@@ -312,7 +323,11 @@ class CameraMotion:
         """Shift of ``frame`` (``reduced``: it reduced, ``small``: that one's spectrum)
         against the reference ``ref``, or None when the match is weak: phase correlation,
         then the reference's Lucas-Kanade fit on the reduced frames (a keyframe's), then
-        the full-resolution crop's (when ``frame`` is given and the keyframe has one)."""
+        the full-resolution crop's (when ``frame`` is given and the keyframe has one). A
+        keyframe of a lone straight edge is matched across the edge alone (``_Profile``)."""
+        if ref.profile is not None:
+            n = ref.profile.shift(reduced, (self.limit + EDGE_STEP) / self.scale)
+            return None if n is None else n * ref.profile.normal * self.scale
         d, peak = self.coarse.shift(ref.spectrum, small)
         if peak < MIN_PEAK or not np.isfinite(d).all():
             return None
@@ -357,12 +372,14 @@ class _Gradients:
     STEPS = 2
 
     @staticmethod
-    def _band(a) -> np.ndarray:
-        """The frame median-filtered (3x3: no hot pixels) and smoothed by 1 px minus its
-        level at ``DETREND`` px: the structure that moves with the scene, without the
-        sensor's vignetting or a sky gradient that stay put in the image (they would
-        hold the fit at zero shift)."""
-        a = _robust_range(cv2.medianBlur(np.ascontiguousarray(a, np.float32), 3))
+    def _band(a, clip: bool = True) -> np.ndarray:
+        """The frame median-filtered (3x3: no hot pixels), clipped (``_robust_range``,
+        unless ``clip`` is False) and smoothed by 1 px minus its level at ``DETREND`` px:
+        the structure that moves with the scene, without the sensor's vignetting or a sky
+        gradient that stay put in the image (they would hold the fit at zero shift)."""
+        a = cv2.medianBlur(np.ascontiguousarray(a, np.float32), 3)
+        if clip:
+            a = _robust_range(a)
         return (cv2.GaussianBlur(a, (0, 0), 1.0)
                 - cv2.GaussianBlur(a, (0, 0), DETREND, borderType=cv2.BORDER_REFLECT))
 
@@ -405,6 +422,163 @@ class _Gradients:
             if np.abs(d - start).max() > reach:
                 return None
             if np.abs(r).max() < 0.01:
+                break
+        return d
+
+
+#: the white-noise gain of ``_Gradients``: E[gx^2] per squared spread of the reduced
+#: frame's 3x3 high-pass (``_median_spread`` of frame - medianBlur(frame, 3)), by the
+#: number of ``cv2.pyrDown`` steps (the noise of a reduced frame is correlated); the mean
+#: over 4 white-noise frames of 512 px reduced (tests/test_camera.py recomputes them within
+#: 10 %); 3 and more: the last
+GRADIENT_GAIN = (0.0153, 0.062, 0.086, 0.094)
+#: a lone straight edge (``lone_edge``): the structure tensor's larger eigenvalue, less the
+#: noise's share, at least EDGE_MAJOR x that share (frames of noise, hot pixels and
+#: targets: 0.2 or less) and 4 x the smaller, and the smaller, less the noise's share, under
+#: EDGE_MINOR x that share (simulated horizons over noise: -0.1 to 1.3; every frame of the
+#: 17 real folders: 10 and more; textured clouds 6.5 and more; scratch measurements on
+#: bench_unseen's 100 scenes, 2026-12-05)
+EDGE_MAJOR = 0.5
+EDGE_MINOR = 2.0
+#: ... and it runs across the frame: of EDGE_PARTS equal parts along it, each holds at
+#: least half the mean part's gradient energy across it
+EDGE_PARTS = 4
+#: px (full resolution): the largest camera step between frames that a lone edge's
+#: keyframe is searched for beyond the keyframe's own limit
+EDGE_STEP = 16.0
+#: the normalised correlation of two edge profiles' derivatives below which they are not
+#: taken to match
+EDGE_MATCH = 0.5
+
+
+def lone_edge(frame: np.ndarray, levels: int) -> np.ndarray | None:
+    """The unit normal (x, y) of a lone straight edge in a reduced frame, or None.
+
+    A horizon over featureless sky or sea pins the camera's motion across it and leaves
+    the motion along it free: phase correlation's peak then lies anywhere along a ridge,
+    and over noise the Lucas-Kanade fit's aperture test passes on the noise's gradients
+    and fits them (unseen scenes under a pan drifted tens of px along their horizon). The
+    frame is such an edge when its gradients' structure tensor, less what white noise of
+    the frame's level gives it (``GRADIENT_GAIN``), is strong on one axis and at the noise
+    on the other (``EDGE_MINOR``). The frame is not clipped for it (``_Gradients``
+    clips it to its median +- 3 robust sigmas, which cut a horizon with most of the
+    frame on one side down to its noise).
+
+    Parameters
+    ----------
+    frame : ndarray of shape (h, w)
+        The reduced frame (``levels`` x ``cv2.pyrDown``).
+    levels : int
+        How many times it was reduced.
+    """
+    a = np.asarray(frame, np.float32)
+    spread = _median_spread((a - cv2.medianBlur(a, 3))[::2, ::2])[1]
+    band = _Gradients._band(a, clip=False)
+    gx = (cv2.Sobel(band, cv2.CV_32F, 1, 0, ksize=3) / 8.0).ravel().astype(np.float64)
+    gy = (cv2.Sobel(band, cv2.CV_32F, 0, 1, ksize=3) / 8.0).ravel().astype(np.float64)
+    noise = len(gx) * GRADIENT_GAIN[min(levels, len(GRADIENT_GAIN) - 1)] * spread ** 2
+    if not noise > 0:
+        return None
+    sxx, syy, sxy = float(np.dot(gx, gx)), float(np.dot(gy, gy)), float(np.dot(gx, gy))
+    half, gap = 0.5 * (sxx + syy), math.sqrt(0.25 * (sxx - syy) ** 2 + sxy * sxy)
+    major, minor = (half + gap) / noise - 1.0, (half - gap) / noise - 1.0
+    if not (major >= EDGE_MAJOR and minor < min(EDGE_MINOR, 0.25 * major)):
+        return None
+    angle = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+    normal = np.array([math.cos(angle), math.sin(angle)])
+    # across the frame: the gradient energy across it (above the noise's) is spread along
+    # the edge, not a short bright bar or streak moving over noise
+    h, w = a.shape
+    yy, xx = np.mgrid[:h, :w]
+    along = (xx * -normal[1] + yy * normal[0]).ravel()
+    energy = (gx * normal[0] + gy * normal[1]) ** 2 - noise / len(gx)
+    part = np.minimum(((along - along.min()) / (np.ptp(along) + 1e-9) * EDGE_PARTS).astype(int),
+                      EDGE_PARTS - 1)
+    share = np.bincount(part, energy, EDGE_PARTS)
+    if not share.min() >= 0.5 * share.mean():
+        return None
+    return normal
+
+
+class _Profile:
+    """A reduced keyframe's profile across a lone straight edge, and the shift of a frame
+    across that edge (``lone_edge``).
+
+    Pixels are binned by their distance s = n . (x, y) across the edge (n its unit normal)
+    and averaged: frame and keyframe give two 1-D profiles whose shift is the camera's
+    motion across the edge. Along the edge the camera is taken to hold still, which
+    changes nothing for a background registered on that edge alone (it is the same all
+    along itself). The profiles' derivatives are correlated (a level or a smooth gradient
+    that stays put in the image does not pin the match), then the shift is refined by a
+    1-D Lucas-Kanade fit of the profiles. Not clipped as for phase correlation: the clip's
+    range follows the share of the frame either side of the edge, and a compact bright
+    thing is diluted by a bin's dozens of pixels anyway.
+    """
+
+    STEPS = 3
+
+    def __init__(self, frame: np.ndarray, normal: np.ndarray):
+        h, w = frame.shape
+        self.normal = np.asarray(normal, float)
+        yy, xx = np.mgrid[:h, :w]
+        s = xx * self.normal[0] + yy * self.normal[1]
+        self.index = np.floor(s - s.min()).astype(np.int64).ravel()
+        self.bins = int(self.index.max()) + 1
+        counts = np.bincount(self.index, minlength=self.bins).astype(float)
+        # the bins at the frame's corners hold a few pixels: left out
+        self.valid = counts >= 0.25 * counts.max()
+        self.counts = np.maximum(counts, 1.0)
+        self.ref = self.profile(frame)
+
+    def profile(self, frame: np.ndarray) -> np.ndarray:
+        """The mean of the frame (3x3 median) in each bin across the edge, NaN outside
+        the valid bins."""
+        a = cv2.medianBlur(np.ascontiguousarray(frame, np.float32), 3)
+        p = np.bincount(self.index, a.ravel().astype(np.float64), self.bins) / self.counts
+        p[~self.valid] = np.nan
+        return p
+
+    def shift(self, frame: np.ndarray, reach: float) -> float | None:
+        """The shift d (reduced px) of ``frame`` across the edge (a scene point at p in the
+        keyframe is at p + d n in the frame), at most ``reach``; None when the profiles do
+        not match."""
+        cur = self.profile(frame)
+        g_ref, g_cur = np.diff(self.ref), np.diff(cur)
+        n = len(g_ref)
+        reach = int(min(np.ceil(reach), n // 3))
+        if reach < 1:
+            return None
+        lags = np.arange(-reach, reach + 1)
+        score = np.full(len(lags), -np.inf)
+        for i, lag in enumerate(lags):          # a loop over the lags (tens)
+            a = g_ref[max(0, -lag):n - max(0, lag)]
+            b = g_cur[max(0, lag):n - max(0, -lag)]
+            ok = np.isfinite(a) & np.isfinite(b)
+            a, b = a[ok], b[ok]
+            norm = math.sqrt(float(np.dot(a, a)) * float(np.dot(b, b)))
+            if len(a) >= n // 2 and norm > 0:
+                score[i] = float(np.dot(a, b)) / norm
+        k = int(np.argmax(score))
+        if not score[k] >= EDGE_MATCH:
+            return None
+        d = float(lags[k])
+        if 0 < k < len(lags) - 1 and np.isfinite(score[k - 1]) and np.isfinite(score[k + 1]):
+            d += _peak_offset(score[k - 1], score[k], score[k + 1])
+        # 1-D Lucas-Kanade: cur(s + d) ~ ref(s)  =>  d -= sum(ref' e) / sum(ref'^2)
+        s = np.arange(self.bins, dtype=float)
+        slope = np.gradient(self.ref)
+        good = np.isfinite(cur)
+        for _ in range(self.STEPS):
+            e = np.interp(s + d, s[good], cur[good], left=np.nan, right=np.nan) - self.ref
+            ok = np.isfinite(e) & np.isfinite(slope)
+            den = float(np.dot(slope[ok], slope[ok]))
+            if not den > 0:
+                break
+            r = -float(np.dot(slope[ok], e[ok])) / den
+            if abs(r) > 1.0:                    # the correlation is good to a bin
+                break
+            d += r
+            if abs(r) < 0.01:
                 break
         return d
 

@@ -72,3 +72,56 @@ def test_results_carry_the_camera_of_every_frame():
     cam = out["camera"]
     assert cam.dtype == tables.CAMERA and cam["frame"].tolist() == list(range(48))
     assert np.abs(np.column_stack([cam["dx"], cam["dy"]]) - truth).max() < 0.3
+
+
+def test_gradient_gain_is_white_noises():
+    # GRADIENT_GAIN: E[gx^2] of the band-passed frame's Sobel / 8 (lone_edge's, unclipped)
+    # per squared spread of the 3x3 high-pass, on white noise reduced 0-3 times
+    from irdetect.camera import GRADIENT_GAIN, _Gradients, _median_spread, _reduce
+    for levels, gain in enumerate(GRADIENT_GAIN):
+        z = np.random.default_rng(5).normal(0, 1, (512 << levels, 512 << levels))
+        r = _reduce(z.astype(np.float32), levels)
+        band = _Gradients._band(r, clip=False)[16:-16, 16:-16]
+        gx, gy = (cv2.Sobel(band, cv2.CV_32F, 1, 0, ksize=3) / 8.0,
+                  cv2.Sobel(band, cv2.CV_32F, 0, 1, ksize=3) / 8.0)
+        k = 0.5 * (np.mean(gx ** 2) + np.mean(gy ** 2))
+        spread = _median_spread((r - cv2.medianBlur(r, 3))[::2, ::2])[1]
+        assert k / spread ** 2 == pytest.approx(gain, rel=0.1)
+
+
+def _horizon(offsets, shape=(240, 320), tilt=0.1, step=60.0, noise=5.0, rng=0):
+    """A bright ground below a straight horizon (slope ``tilt``) over noise, seen by a camera
+    whose image offsets are ``offsets`` (T, 2)."""
+    g = np.random.default_rng(rng)
+    h, w = shape
+    yy, xx = np.mgrid[:h, :w].astype(np.float32)
+    frames = []
+    for dx, dy in offsets:
+        # the scene point (x, y) is at (x + dx, y + dy): the horizon y = 110 + tilt x
+        edge = (yy - dy) - (110 + tilt * (xx - dx))
+        frames.append(100 + step / (1 + np.exp(-edge / 0.8)))
+    frames = np.stack(frames).astype(np.float32)
+    return frames + g.normal(0, noise, frames.shape).astype(np.float32)
+
+
+def test_a_lone_horizon_gives_the_camera_across_it():
+    # a pan over a horizon and featureless sky: the motion across the edge is measured,
+    # along it the camera is taken to hold still (it cannot be told); phase correlation
+    # and the 2-D fit had drifted tens of px along unseen scenes' horizons
+    from irdetect.camera import _reduce, lone_edge
+    truth = pan(40, (1.5, -2.0))
+    frames = _horizon(truth)
+    normal = lone_edge(_reduce(frames[0], 1), 1)
+    assert normal is not None and abs(abs(normal[1]) - 1 / np.hypot(1, 0.1)) < 0.01
+    est = estimate_motion(frames)
+    n = np.array([-0.1, 1.0]) / np.hypot(0.1, 1.0)
+    across = (est - truth) @ n
+    assert np.abs(across).max() < 0.5
+    # a textured scene is no lone edge, nor a short bright bar over noise (a streak: the
+    # camera would follow it)
+    tex = scene_frames(truth[:1])[0]
+    assert lone_edge(_reduce(tex, 1), 1) is None
+    yy, xx = np.mgrid[:240, :320]
+    bar = (100 + 30 * np.exp(-0.5 * (((xx - 80) / 8.0) ** 2 + ((yy - 60) / 0.8) ** 2))
+           + np.random.default_rng(2).normal(0, 2, (240, 320))).astype(np.float32)
+    assert lone_edge(_reduce(bar, 1), 1) is None
