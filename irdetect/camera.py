@@ -16,9 +16,12 @@ docs/real.md). Frames are median-filtered (3x3) and clipped to +-3 robust sigmas
 and the cross-power spectrum is weighted by a Gaussian low-pass: the sensor's fixed
 pattern (hot pixels, a column mesh: flat spectra that stay put in the image), vignetting
 (band-passed away for the fit) and the targets themselves do not pin or drag the
-estimate. Featureless frames and a lone straight edge give no estimate: the camera is
-then taken to hold still. ``scipy.fft`` (one thread) keeps the offsets the same from run
-to run.
+estimate. Featureless frames give no estimate: the camera is then taken to hold still. A
+lone straight edge (a horizon over featureless sky or sea, ``lone_edge``) gives the motion
+across it alone, by matching the frame's profile across the edge to the keyframe's
+(``_Profile``); along it the camera is taken to hold still (nothing there says how far it
+moved, and a background registered on that edge alone does not need it). ``scipy.fft``
+(one thread) keeps the offsets the same from run to run.
 """
 
 from __future__ import annotations

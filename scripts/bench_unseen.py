@@ -774,7 +774,8 @@ def write_report(path: Path, scenes: list[dict], args, total: float) -> None:
               "target-windows; tracks false = false / all tracks; camera err = RMS over frames of "
               "the distance between irdetect's camera offset (`/camera`) and the simulated "
               "one (a scene without clutter has nothing to register: irdetect then reports "
-              "a still camera); fps of detect_sequence.",
+              "a still camera; over a lone horizon it measures the motion across it alone "
+              "and holds the camera still along it); fps of detect_sequence.",
               "",
               "| scene | H x W | frames | dtype | psf | speed | pan | jitter | snr | clutter | "
               "targets | Pd | false / frame | Pt | tracks false | camera err px | fps | clip % |",
