@@ -132,19 +132,26 @@ def test_slow_wide_target_is_found_from_the_first_frames():
     assert len(tracks) == 1 and r["matches"] == len(early) and r["fp"] == 0
 
 
-def test_target_jumping_out_of_its_gate_keeps_its_id():
-    # daub-data20: the target jumps 5 px in one frame (a camera jump its offsets miss); the
-    # confirmed track coasts, a new one is confirmed where the target went and takes the
-    # old one's id (it had ended with an id switch: IDF1 0.68)
-    g = np.random.default_rng(4)
-    n, h, w = 70, 96, 128
+def _jumping(rng, n, jump_at):
+    """A point target (PSF sigma 1 px, peak 30 over noise of sigma 3) at 0.8 px/frame that
+    jumps 5 px at frame ``jump_at``; ``n`` frames of 96 x 128, and its truth."""
+    g = np.random.default_rng(rng)
+    h, w = 96, 128
     frames = g.normal(100, 3, (n, h, w)).astype(np.float32)
     truth = np.zeros(n, [("frame", "<i8"), ("target", "<i8"), ("x", "<f8"), ("y", "<f8"),
                          ("amplitude", "<f8")])
     for t in range(n):
-        x, y = 20 + 0.8 * t + (5.0 if t >= 35 else 0.0), 40 + 0.3 * t
+        x, y = 20 + 0.8 * t + (5.0 if t >= jump_at else 0.0), 40 + 0.3 * t
         frames[t] += _blob((h, w), x, y, 1.0, 1.0, 30.0).astype(np.float32)
         truth[t] = (t, 0, x, y, 30.0)
+    return frames, truth
+
+
+def test_target_jumping_out_of_its_gate_keeps_its_id():
+    # daub-data20: the target jumps 5 px in one frame (a camera jump its offsets miss); the
+    # confirmed track coasts, a new one is confirmed where the target went and takes the
+    # old one's id (it had ended with an id switch: IDF1 0.68)
+    frames, truth = _jumping(4, 70, 35)
     points, tracks = track(frames)
     r = clear_mot(truth, points, gate=3.0)
     assert len(tracks) == 1 and r["id_switches"] == 0 and r["mota"] > 0.8
@@ -155,19 +162,11 @@ def test_a_target_restarted_while_tentative_keeps_its_first_hits():
     # easy3's shaking camera: the target jumps 5 px at frame 3, out of its tentative track's
     # gate; the track born there is confirmed and takes the lapsed one's hits of frames
     # 0-2 (it started at frame 3: 37 of 40 frames)
-    g = np.random.default_rng(0)
-    n, h, w = 40, 96, 128
-    frames = g.normal(100, 3, (n, h, w)).astype(np.float32)
-    truth = np.zeros(n, [("frame", "<i8"), ("target", "<i8"), ("x", "<f8"), ("y", "<f8"),
-                         ("amplitude", "<f8")])
-    for t in range(n):
-        x, y = 20 + 0.8 * t + (5.0 if t >= 3 else 0.0), 40 + 0.3 * t
-        frames[t] += _blob((h, w), x, y, 1.0, 1.0, 30.0).astype(np.float32)
-        truth[t] = (t, 0, x, y, 30.0)
+    frames, truth = _jumping(0, 40, 3)
     points, tracks = track(frames)
     r = clear_mot(truth, points, gate=3.0)
-    assert len(tracks) == 1 and r["matches"] == n and r["fp"] == 0
-    assert tracks["frame_start"][0] == 0 and tracks["n_points"][0] == n
+    assert len(tracks) == 1 and r["matches"] == len(frames) and r["fp"] == 0
+    assert tracks["frame_start"][0] == 0 and tracks["n_points"][0] == len(frames)
 
 
 @pytest.mark.parametrize("rng", [0, 1])
