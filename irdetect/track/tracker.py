@@ -382,14 +382,14 @@ class _TrackerBase:
         at the frame's level) within the clutter test's radius of its prediction that it
         did not take (the local clutter)."""
         tent = [i for i, t in enumerate(self.tracks) if not t.confirmed]
-        z = z[seeds]
-        if not tent or not len(z):
+        if not tent or not seeds.any():
             return
         pred = np.array([[self.tracks[i].x[0], self.tracks[i].x[2]] for i in tent])
-        near = np.hypot(*(z[None, :, :] - pred[:, None, :]).transpose(2, 0, 1)) \
+        near = np.hypot(*(z[seeds][None, :, :] - pred[:, None, :]).transpose(2, 0, 1)) \
             <= self.confirm.radius
         for row, i in enumerate(tent):       # a loop over the tentative tracks
-            own = len(assign[i][0]) if len(assign[i]) else 0
+            # the regions it took, of those counted (a gate search's are not)
+            own = int(seeds[assign[i][0]].sum()) if len(assign[i]) else 0
             self.tracks[i].clutter += max(int(near[row].sum()) - own, 0)
 
     def _gate_matrix(self, z: np.ndarray) -> np.ndarray:
