@@ -105,6 +105,23 @@ def test_a_panning_shaking_camera_moves_the_scene_but_not_the_hot_pixels():
     assert len(spikes[0] & spikes[1] & spikes[2]) >= 20
 
 
+def test_paths_longer_than_the_frame_cross_it_whole_at_times_of_their_own():
+    # a fast pan on a narrow frame: every path is longer than the frame across it
+    from irdetect.simulate.sequence import load_scenario, target_paths
+
+    s = load_scenario("wan2008", n_targets=8, width=300, height=100, n_frames=120,
+                      camera_pan=(0.5, 2.0), speed=[1.0, 2.0], margin=5)
+    paths = target_paths(s, np.random.default_rng(3))
+    t = np.arange(s.n_frames)[:, None]
+    x, y = paths[:, 0] + paths[:, 2] * t, paths[:, 1] + paths[:, 3] * t     # (T, n)
+    inside = (x >= 5) & (x <= 294) & (y >= 5) & (y <= 94)
+    # each crosses the 90 rows inside (0.5 px of rounding): 90 / vy frames
+    assert (inside.sum(0) >= np.floor(89 / np.abs(paths[:, 3]))).all()
+    # ... at a time of its own, not all through the centre at mid-sequence
+    mid = (inside * t).sum(0) / inside.sum(0)
+    assert np.ptp(mid) > 20
+
+
 def test_camera_options_are_checked():
     with pytest.raises(InputError, match="camera_jitter"):
         load_scenario("wan2008", camera_jitter=-1.0)

@@ -152,7 +152,8 @@ def _validate(s: SequenceScenario, path=None) -> None:
 
 
 def target_paths(s: SequenceScenario, rng: np.random.Generator) -> np.ndarray:
-    """Draw start positions and velocities that keep each path inside the frame.
+    """Draw start positions and velocities that keep each path inside the frame, or,
+    on an axis it is longer than the frame, cross it whole.
 
     Returns
     -------
@@ -170,11 +171,23 @@ def target_paths(s: SequenceScenario, rng: np.random.Generator) -> np.ndarray:
         dx, dy = vx * (s.n_frames - 1), vy * (s.n_frames - 1)
         lo_x, hi_x = s.margin - min(dx, 0), s.width - 1 - s.margin - max(dx, 0)
         lo_y, hi_y = s.margin - min(dy, 0), s.height - 1 - s.margin - max(dy, 0)
-        if lo_x > hi_x or lo_y > hi_y:  # path longer than the frame: start at the edge
-            lo_x = hi_x = s.width / 2 - dx / 2
-            lo_y = hi_y = s.height / 2 - dy / 2
-        out[j] = rng.uniform(lo_x, hi_x), rng.uniform(lo_y, hi_y), vx, vy
+        # an axis the path is longer than the frame on (lo > hi): every start between
+        # the two bounds crosses the whole frame along it during the sequence; u says
+        # when (0 as early as it can, 1 as late), one u for both axes so that the two
+        # crossings overlap (all such paths through the centre at mid-sequence made every
+        # target of a scene meet there)
+        u = rng.uniform() if lo_x > hi_x or lo_y > hi_y else 0.0
+        out[j] = (_start(lo_x, hi_x, dx, u, rng), _start(lo_y, hi_y, dy, u, rng), vx, vy)
     return out
+
+
+def _start(lo: float, hi: float, d: float, u: float, rng: np.random.Generator) -> float:
+    """A start coordinate in [lo, hi] (a path of length d inside the frame), or, when
+    lo > hi (a path longer than the frame), the one that crosses it at time fraction u."""
+    if lo <= hi:
+        return rng.uniform(lo, hi)
+    early, late = (lo, hi) if d > 0 else (hi, lo)
+    return early + u * (late - early)
 
 
 def camera_offsets(s: SequenceScenario, rng: np.random.Generator) -> np.ndarray:
