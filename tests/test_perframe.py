@@ -277,6 +277,33 @@ def test_a_turning_target_is_one_track_and_two_crossing_targets_are_two():
     assert len(tracks) == 2 and set(tracks["n_points"]) == {5}
 
 
+def test_a_target_that_crosses_the_frame_in_a_few_windows_is_a_track_cut_to_the_frame():
+    # 11 windows of 12 frames; a target at 5 px/frame crosses the 320-px frame in windows
+    # 2-6 (5 detections, under the 0.6 x 10 votes of a line inside throughout), a line
+    # inside in all 11 with 5 detections, and scattered points
+    starts = 12 * np.arange(11)
+    mid = starts + 5.5
+    k = np.arange(2, 7)
+    fast = _windows(-10.0 + 5.0 * mid[k], 60.0 + 0 * k)
+    fast["combined_frame"] = k
+    fast["frame_start"], fast["frame_end"] = starts[k], starts[k] + 11
+    slow = _windows(100 + 1.0 * mid[:5], 150.0 + 0 * mid[:5])
+    rng = np.random.default_rng(0)
+    noise = _windows(rng.uniform(0, 319, 11), rng.uniform(0, 239, 11))
+    det = np.concatenate([fast, slow, noise])
+    det = det[np.argsort(det["combined_frame"], kind="stable")]
+    config = ProcessConfig()
+    assert len(initiate_tracks(det, config)) == 0              # the first pass alone
+    tracks = initiate_tracks(det, config, shape=(240, 320), starts=starts, length=12)
+    assert len(tracks) == 1 and tracks["n_points"][0] == 5
+    t = tracks[0]
+    assert abs(t["vx"] - 5.0) < 0.05 and abs(t["vy"]) < 0.05
+    # its span, its windows' frames 24-83, is cut to those its line is inside the frame
+    # in: x = -10 + 5 f <= 319 up to frame 65
+    assert (t["frame_start"], t["frame_end"]) == (24, 65)
+    assert abs(t["x0"] - 110.0) < 0.5
+
+
 def _turning_scene(seed, n=60):
     # a bright point (peak 12 noise sigmas) at (2, 1) px/frame that turns to (1, 2.5)
     # px/frame after frame 47, as istd640-seq3-135's target does in its last window

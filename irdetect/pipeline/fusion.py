@@ -17,8 +17,10 @@ follows targets too fast for a combined frame. Per window (``fuse_paths``):
   the window are pieces of that target's streak and are dropped (``streak_distance``).
 
 Then Hough + subtractive clustering initiates the tracks on the fused detections
-(``initiate_tracks``, the papers' hand-off), each track's ``path`` the union of its
-detections'. Coordinates: x = column, y = row, px; time in frames.
+(``initiate_tracks``, the papers' hand-off; a second pass asks a line that leaves the
+frame for the votes of the windows it is inside in, and every track's span is cut to the
+frame), each track's ``path`` the union of its detections'. Coordinates: x = column,
+y = row, px; time in frames.
 """
 
 from __future__ import annotations
@@ -242,23 +244,18 @@ def fuse_paths(combined: np.ndarray, frame_tracks: np.ndarray) -> np.ndarray:
 def track_paths(tracks: np.ndarray, detections: np.ndarray, camera, gate: float) -> np.ndarray:
     """The union of the ``path`` bits of the detections each track holds (those of its
     span within ``gate`` px of its positions); int8 of shape (n_tracks,)."""
-    from irdetect.initiate import track_positions
-
     out = np.zeros(len(tracks), np.int8)
     if not len(tracks) or not len(detections):
         return out
-    t = 0.5 * (detections["frame_start"] + detections["frame_end"])
-    pos = track_positions(tracks, t, camera)                              # (n, d, 2)
-    dist = np.hypot(pos[..., 0] - detections["x"][None], pos[..., 1] - detections["y"][None])
-    inside = (t[None] >= tracks["frame_start"][:, None]) & (t[None] <= tracks["frame_end"][:, None])
-    held = inside & (dist <= gate)
+    held = _support(tracks, detections, camera, gate)[0]
     for bit in (tables.PATH_COMBINED, tables.PATH_FRAME):
         out |= np.where((held & ((detections["path"] & bit) > 0)[None]).any(1), bit, 0).astype(np.int8)
     return out
 
 
 def initiate_tracks(detections: np.ndarray, config: ProcessConfig,
-                    camera=None) -> np.ndarray:
+                    camera=None, *, shape: tuple[int, int] | None = None,
+                    starts=None, length: int | None = None) -> np.ndarray:
     """Tracks from the confirmed detections (``irdetect.initiate``), TRACK table.
 
     With the camera's offsets (a CAMERA table) of a moving camera, tracks are initiated
@@ -267,20 +264,132 @@ def initiate_tracks(detections: np.ndarray, config: ProcessConfig,
     scene under a panning or shaking camera; ``scene`` rows, their positions follow the
     camera, ``irdetect.initiate.track_positions``). Tracks that hold a target another
     track holds better are dropped (``_distinct_tracks``).
-    """
-    from irdetect.initiate import initiate_detections
 
+    Given the frame's ``shape`` and the windows (``starts``, ``length``), a line that
+    leaves the frame needs its votes only from the windows it is inside in
+    (``_leaving_tracks``): Zhang et al.'s threshold, ``vote_fraction`` of the scans, is
+    that of a radar whose target stays in view, and a target that crosses the frame in 4
+    windows of 11 could never reach 0.6 x 10 votes.
+    """
     ic = config.initiate
     params = asdict(ic)
+    tracks = _both_frames(detections, camera, params)
+    scans = len(np.unique(detections["combined_frame"]))
+    need = max(2, vote_threshold(ic.vote_fraction, min(scans, ic.window or scans)))
+    gate = float(ic.gate * ic.sigma)
+    out = tracks[_distinct_tracks(tracks, detections, camera, gate, need)]
+    if shape is not None and starts is not None and len(starts) >= LEAVING_VOTES:
+        extra, votes = _leaving_tracks(detections, camera, params, out, shape=shape,
+                                       starts=np.asarray(starts), length=int(length))
+        if len(extra):
+            both = np.concatenate([out, extra])
+            needs = np.concatenate([np.full(len(out), need), votes])
+            out = both[_distinct_tracks(both, detections, camera, gate, needs)]
+        out = _inside_frame(out, camera, shape)
+    out["track_id"] = np.arange(len(out))
+    return out
+
+
+def _inside_frame(tracks, camera, shape) -> np.ndarray:
+    """``tracks`` with each span cut to the frames its line is inside the frame in (a
+    track's span is its windows'; a target that leaves mid-window is not where the line
+    goes on to), ``x0``, ``y0`` (and a scene track's ``rho``) moved to the new first
+    frame. A track whose line is inside in no frame of its span keeps it."""
+    from irdetect.initiate import camera_at, track_positions
+
+    out = tracks.copy()
+    h, w = shape
+    for i, tr in enumerate(tracks):                    # a loop over the tracks (a handful)
+        f = np.arange(tr["frame_start"], tr["frame_end"] + 1)
+        pos = track_positions(tracks[i:i + 1], f, camera)[0]
+        ok = np.flatnonzero((pos[:, 0] >= 0) & (pos[:, 0] <= w - 1)
+                            & (pos[:, 1] >= 0) & (pos[:, 1] <= h - 1))
+        if not len(ok) or (ok[0] == 0 and ok[-1] == len(f) - 1):
+            continue
+        out["frame_start"][i], out["frame_end"][i] = f[ok[0]], f[ok[-1]]
+        out["x0"][i], out["y0"][i] = pos[ok[0]]
+        if tr["scene"]:
+            # rho is in the image coordinates of the first frame (``_scene_tracks``)
+            move = np.diff(camera_at(camera, [tr["frame_start"], f[ok[0]]]), axis=0)[0]
+            out["rho"][i] += move[0] * np.cos(tr["theta"]) + move[1] * np.sin(tr["theta"])
+    return out
+
+
+def _both_frames(detections, camera, params: dict) -> np.ndarray:
+    """Tracks initiated on the image positions and, for a moving camera, on the scene
+    positions too (``_scene_tracks``)."""
+    from irdetect.initiate import initiate_detections
+
     tracks = initiate_detections(detections, **params)
     if camera is not None and len(camera) >= 2 and len(detections) >= 2 and (
             np.ptp(camera["dx"]) >= MOVING_PX or np.ptp(camera["dy"]) >= MOVING_PX):
         tracks = np.concatenate([tracks, _scene_tracks(detections, camera, params)])
-    scans = len(np.unique(detections["combined_frame"]))
-    need = max(2, vote_threshold(ic.vote_fraction, min(scans, ic.window or scans)))
-    out = tracks[_distinct_tracks(tracks, detections, camera, float(ic.gate * ic.sigma), need)]
-    out["track_id"] = np.arange(len(out))
-    return out
+    return tracks
+
+
+#: the fewest detections a track of a line that leaves the frame needs (a line through 2
+#: points is no evidence)
+LEAVING_VOTES = 3
+
+
+def _leaving_tracks(detections, camera, params: dict, tracks, *, shape, starts,
+                    length: int) -> tuple[np.ndarray, np.ndarray]:
+    """Tracks of lines that are inside the frame in fewer windows than the initiation's
+    (fast targets crossing it, and targets that enter or leave), on the detections no
+    track of ``tracks`` holds.
+
+    The candidates come from a Hough of those detections at ``LEAVING_VOTES`` votes; one
+    is kept when its detections reach ``vote_fraction`` of the windows whose middle
+    frame its line is inside the frame in (at most ``window`` of them), and at least
+    ``LEAVING_VOTES``, and when that count is below the windows of the sequence (a line
+    inside throughout had its vote in the first pass).
+
+    Parameters
+    ----------
+    detections : structured ndarray
+        ``tables.DETECTION`` rows.
+    camera : structured ndarray or None
+        ``tables.CAMERA`` rows.
+    params : dict
+        ``InitiateConfig`` as keywords.
+    tracks : structured ndarray
+        The tracks found so far (``tables.TRACK``).
+    shape : (int, int)
+        Frame (H, W).
+    starts : ndarray of int
+        First frame of every window of the sequence; ``length`` frames per window.
+
+    Returns
+    -------
+    tracks : structured ndarray
+        The ``tables.TRACK`` rows kept.
+    votes : ndarray of int
+        The detections each needs.
+    """
+    from irdetect.initiate import track_positions
+
+    gate = float(params["gate"] * params["sigma"])
+    free = ~_support(tracks, detections, camera, gate)[0].any(axis=0)
+    rest = detections[free]
+    scans = len(np.unique(rest["combined_frame"]))
+    if scans < LEAVING_VOTES:
+        return tables.empty(tables.TRACK), np.zeros(0, np.int64)
+    window = int(params["window"]) or len(starts)
+    # the fraction of a Hough window's scans that is LEAVING_VOTES votes
+    low = LEAVING_VOTES / min(window, scans)
+    cand = _both_frames(rest, camera, {**params, "vote_fraction": low, "min_hits": low})
+    if not len(cand):
+        return cand, np.zeros(0, np.int64)
+    h, w = shape
+    mid = starts + 0.5 * (length - 1)
+    pos = track_positions(cand, mid, camera)                             # (n, windows, 2)
+    seen = ((pos[..., 0] >= 0) & (pos[..., 0] <= w - 1)
+            & (pos[..., 1] >= 0) & (pos[..., 1] <= h - 1)).sum(axis=1)
+    scans = np.minimum(seen, window)
+    need = np.maximum(LEAVING_VOTES, [vote_threshold(params["vote_fraction"], int(n))
+                                      for n in scans])
+    keep = (cand["n_points"] >= need) & (seen < len(starts))
+    return cand[keep], need[keep]
 
 
 def _scene_tracks(detections: np.ndarray, camera, params: dict) -> np.ndarray:
@@ -309,7 +418,20 @@ def _scene_tracks(detections: np.ndarray, camera, params: dict) -> np.ndarray:
 MOVING_PX = 1.0
 
 
-def _distinct_tracks(tracks, detections, camera, gate: float, need: int) -> np.ndarray:
+def _support(tracks, detections, camera, gate: float):
+    """(support, dist) of shape (tracks, detections): a detection supports a track when
+    its time lies in the track's span and it is within ``gate`` px of the track's position
+    then; ``dist`` that distance."""
+    from irdetect.initiate import track_positions
+
+    t = 0.5 * (detections["frame_start"] + detections["frame_end"])
+    pos = track_positions(tracks, t, camera)                              # (n, d, 2)
+    dist = np.hypot(pos[..., 0] - detections["x"][None], pos[..., 1] - detections["y"][None])
+    inside = (t[None] >= tracks["frame_start"][:, None]) & (t[None] <= tracks["frame_end"][:, None])
+    return inside & (dist <= gate), dist
+
+
+def _distinct_tracks(tracks, detections, camera, gate: float, need) -> np.ndarray:
     """Indices of tracks to keep, best first (more support, then the smaller mean
     distance): a track is dropped when half its support or more is a better kept track's
     (one target claimed twice), or when fewer than ``need`` of its detections are no kept
@@ -318,23 +440,19 @@ def _distinct_tracks(tracks, detections, camera, gate: float, need: int) -> np.n
     the rest).
 
     A track's support is the detections of its span within ``gate`` px of its positions;
-    ``need`` the detections a Hough cell needs (the vote threshold)."""
-    from irdetect.initiate import track_positions
-
+    ``need`` the detections a Hough cell needs (the vote threshold; one per track, or
+    one for all)."""
     if len(tracks) < 2:
         return np.arange(len(tracks))
-    t = 0.5 * (detections["frame_start"] + detections["frame_end"])
-    pos = track_positions(tracks, t, camera)                              # (n, d, 2)
-    dist = np.hypot(pos[..., 0] - detections["x"][None], pos[..., 1] - detections["y"][None])
-    inside = (t[None] >= tracks["frame_start"][:, None]) & (t[None] <= tracks["frame_end"][:, None])
-    support = inside & (dist <= gate)
+    support, dist = _support(tracks, detections, camera, gate)
     count = support.sum(1)
     mean = np.where(count > 0, (dist * support).sum(1) / np.maximum(count, 1), np.inf)
     order = np.lexsort((mean, -count))
+    need = np.broadcast_to(np.asarray(need), (len(tracks),))
     kept: list[int] = []
     claimed = np.zeros(len(detections), bool)
     for i in order:                     # a loop over the tracks (a handful)
-        if kept and (count[i] == 0 or (support[i] & ~claimed).sum() < need or any(
+        if kept and (count[i] == 0 or (support[i] & ~claimed).sum() < need[i] or any(
                 (support[i] & support[j]).sum() >= 0.5 * min(count[i], count[j])
                 for j in kept)):
             continue
@@ -386,7 +504,9 @@ def finish(combined: np.ndarray, peaks: np.ndarray, camera: np.ndarray,
     # the combined-frame path's operating point (``irdetect.operating``; -inf: none)
     combined = combined[~(combined["significance"] < combined["level"])]
     detections = fuse_paths(combined, ft) if fc.enabled else combined
-    tracks = initiate_tracks(detections, config, camera)
+    tracks = initiate_tracks(detections, config, camera, shape=shape,
+                             starts=window_starts(n_frames, length=cc.length, step=cc.step),
+                             length=cc.length)
     tracks["path"] = track_paths(tracks, detections, camera,
                                  config.initiate.gate * config.initiate.sigma)
     return {"frame_tracks": ft, "detections": detections, "tracks": tracks}
