@@ -196,6 +196,7 @@ class TrackConfig:
     max_speed: float = 16.0
     learn_frames: int = 12
     motion_p: float = 0.001
+    clutter_speed: float = 1.5
     guided_rate: float = 0.01
     min_shape: float = 0.35
     sea_sky: bool = False

@@ -5,12 +5,13 @@ FCM association + adaptive PMHT (irdetect.track, method "fcm-pmht") against the 
 velocity Kalman + global nearest neighbour baseline (method "gnn"), on the harbour scene
 (data/presets/harbour.toml, several seeds; the maritime profile, and the paper profile for
 comparison), on random blob scenes drawn from wide ranges (dtype, background, noise, PSF,
-SNR, clouds, 1-6 targets; the default gates) and on the real sequences of
-../shared/data/real (one target each; the defaults). Prints a table and writes
+SNR, clouds, 1-6 targets; the default gates), on bench_unseen's random scenes (sizes,
+dtypes, PSF, speeds, pans, clutter: scripts/bench_unseen.py draws them) and on the real
+sequences of ../shared/data/real (one target each; the defaults). Prints a table and writes
 docs/results/tracking.md.
 
 Usage: .venv/bin/python scripts/bench_tracking.py [--seeds 1 2 3] [--scenes 24]
-                                                  [--held-out 72] [--quick]
+                                                  [--held-out 72] [--unseen 100] [--quick]
                                                   [--jobs N | --scheduler ADDRESS]
 The blob scenes are seeds 0 .. scenes-1 (those issue 17's gates were chosen on) and the
 held-out seeds scenes .. scenes+held_out-1, summarised per block of ``scenes`` seeds; each is
@@ -47,6 +48,9 @@ from irdetect.simulate import simulate  # noqa: E402
 from irdetect.simulate.harbour import simulate_harbour  # noqa: E402
 from irdetect.track import track  # noqa: E402
 
+sys.path.insert(0, str(ROOT / "scripts"))
+import bench_unseen  # noqa: E402
+
 REAL = ROOT.parent / "shared" / "data" / "real"
 HARBOUR_GATE = 5.0          # px; ships are up to 9 px long
 
@@ -74,7 +78,11 @@ FIRST_ROUND = dict(ISSUE17, k=4.0, smooth=0.0, tile=0)
 REAL_GRID = ([dict(psf=p, learn_frames=n) for p in (1.0, 0.6) for n in (12, 0)]
              + [dict(motion_p=m) for m in (0.01, 1.0)]
              + [dict(guided_rate=g) for g in (0.0, 0.1)]
-             + [dict(min_shape=m) for m in (0.0, 0.3)])
+             + [dict(min_shape=m) for m in (0.0, 0.3)]
+             + [dict(clutter_speed=float("inf"))])
+#: the design before the fast tracks that pass the motion and clutter tests were kept out
+#: of the score level's clutter sample (the unseen scenes' "before" column)
+ALL_SAMPLED = dict(clutter_speed=float("inf"))
 #: the line test's values tried on the clutter-only crops (the default, 0.35, among them)
 CROP_SHAPES = (0.0, 0.3, 0.35)
 #: the clutter-only crops are also tracked without the motion's significance test
@@ -183,6 +191,76 @@ def _blob_summary(label: str, blobs: list[dict]) -> str:
             f"{line([r['before'] for r in blobs])}.")
 
 
+def unseen_run(index: int) -> dict:
+    """One of bench_unseen's random scenes (seed 0) with the defaults and with
+    ``ALL_SAMPLED`` (module level for map_tasks)."""
+    scene = bench_unseen.draw_scene(index, 0)
+    frames, truth = bench_unseen.render_scene(scene)
+    gate = max(3.0, 2.5 * scene["psf_sigma"])           # bench_unseen's gate
+    r = _run(frames, truth, gate)
+    r.pop("points")
+    before = _run(frames, truth, gate, **ALL_SAMPLED)
+    r["before"] = {k: before[k] for k in ("mota", "idf1", "fp", "n_tracks_out", "n_truth",
+                                          "matches", "id_switches")}
+    r["scene"] = {k: scene[k] for k in ("speed", "snr", "clutter", "n_targets", "psf_sigma")}
+    r["scene"]["pan"] = float(np.hypot(*scene["overrides"].get("camera_pan", (0.0, 0.0))))
+    r["scene"]["shape"] = frames.shape
+    return r
+
+
+def _unseen_table(results: list[dict]) -> str:
+    """The unseen scenes' summary, strata and per-scene rows (markdown)."""
+    def summary(rs, key=lambda r: r):
+        rs = [key(r) for r in rs if r["n_truth"]]
+        truth = sum(r["n_truth"] for r in rs)
+        if not truth:
+            return "– | – | –"
+        # MOTA over all the scenes' truth points: 1 - (misses + false + switches) / truth
+        miss = sum(r["n_truth"] - r["matches"] for r in rs)
+        fp = sum(r["fp"] for r in rs)
+        ids = sum(r["id_switches"] for r in rs)
+        ok = sum(r["mota"] >= 0.8 and r["idf1"] >= 0.8 for r in rs)
+        return f"{1 - (miss + fp + ids) / truth:.3f} | {fp} | {ok} of {len(rs)}"
+
+    def line(label, rs):
+        empty = [r for r in rs if not r["n_truth"]]
+        return (f"| {label} | {len(rs)} | {summary(rs)} | "
+                f"{summary(rs, lambda r: r['before'])} | "
+                f"{sum(r['n_tracks_out'] for r in empty)} / "
+                f"{sum(r['before']['n_tracks_out'] for r in empty)} |")
+
+    strata = [("all scenes", lambda s: True)]
+    strata += [(f"speed {a}-{b} px/frame", lambda s, a=a, b=b: a <= s["speed"] < b)
+               for a, b in ((0, 2), (2, 4), (4, 7))]
+    strata += [(f"pan {a}-{b} px/frame", lambda s, a=a, b=b: a <= s["pan"] < b)
+               for a, b in ((0, 2), (2, 4), (4, 6))]
+    strata += [(f"clutter {c}", lambda s, c=c: s["clutter"] == c)
+               for c in ("none", "cloud", "edge", "hot")]
+    strata += [(f"SNR {a}-{b}", lambda s, a=a, b=b: a <= s["snr"] < b)
+               for a, b in ((3, 4), (4, 6), (6, 10))]
+    head = ("| stratum | scenes | MOTA (over all truth points) | false points | scenes at "
+            "MOTA and IDF1 >= 0.8 | before: MOTA | before: false points | before: at the "
+            "goal | tracks on scenes without targets (now / before) |\n"
+            "|---|---|---|---|---|---|---|---|---|")
+    rows = [line(label, [r for r in results if test(r["scene"])]) for label, test in strata]
+    scene_head = ("| scene | H x W | frames | speed | pan | SNR | PSF | clutter | targets | "
+                  "MOTA | IDF1 | recall | false points | id switches | tracks | before: MOTA / "
+                  "IDF1 / tracks |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+                  "---|---|")
+    scene_rows = []
+    for i, r in enumerate(results):
+        s, b = r["scene"], r["before"]
+        n, h, w = s["shape"]
+        scores = (f"{r['mota']:.3f} | {r['idf1']:.3f} | {r['recall']:.3f}" if r["n_truth"]
+                  else "– | – | –")
+        before = f"{b['mota']:.3f} / {b['idf1']:.3f}" if r["n_truth"] else "– / –"
+        scene_rows.append(
+            f"| {i} | {h} x {w} | {n} | {s['speed']:.2f} | {s['pan']:.2f} | {s['snr']:.1f} | "
+            f"{s['psf_sigma']:.2f} | {s['clutter']} | {s['n_targets']} | {scores} | {r['fp']} | "
+            f"{r['id_switches']} | {r['n_tracks_out']} | {before} / {b['n_tracks_out']} |")
+    return f"{head}\n" + "\n".join(rows) + f"\n\n{scene_head}\n" + "\n".join(scene_rows)
+
+
 BLOB_HEADER = ("| seed | dtype | background | noise | PSF (px) | SNR | clouds | targets | MOTA "
                "| IDF1 | id switches | recall | false points | tracks | issue 17's defaults: MOTA / "
                "id switches / tracks |\n"
@@ -196,6 +274,8 @@ def main(argv=None) -> int:
                     help="random blob scenes the defaults were chosen on, seeds 0 .. N-1 (24)")
     ap.add_argument("--held-out", type=int, default=72,
                     help="held-out blob scenes, the seeds after those (72)")
+    ap.add_argument("--unseen", type=int, default=100,
+                    help="bench_unseen's random scenes 0 .. N-1 (100; 0: none)")
     ap.add_argument("--quick", action="store_true", help="300 harbour frames, no real data")
     ap.add_argument("--jobs", type=int, default=1, help="local processes for the runs (1)")
     ap.add_argument("--scheduler", help="Dask scheduler address for the runs")
@@ -231,6 +311,9 @@ def main(argv=None) -> int:
         _blob_summary(f"seeds {a}-{b - 1} ({'chosen on' if a == 0 else 'held out'})",
                       blobs[a:b]) for a, b in blocks if b > a)
     print(blob_summary, flush=True)
+    unseen = map_tasks(unseen_run, list(range(args.unseen)), jobs=args.jobs,
+                       scheduler=args.scheduler, progress=True, desc="unseen scenes")
+    unseen_text = _unseen_table(unseen) if unseen else "(not run: --unseen 0)"
     real_rows, real_extra = [], ""
     if not args.quick:
         if REAL.is_dir():
@@ -238,7 +321,7 @@ def main(argv=None) -> int:
         else:
             real_rows.append(f"| (skipped: {REAL} not found) |||||||||| ")
     text = _report(args, harbour_rows, mean_rows, real_rows, merge_notes, blob_rows,
-                   blob_summary) + real_extra
+                   blob_summary, unseen_text) + real_extra
     print(text)
     if not args.quick:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
@@ -338,7 +421,12 @@ test; the level was looked at on the clutter-only crops below), and `guided_rate
 a confirmed track's gate searched at the level white noise reaches 0.01 times per frame in
 it; 0: not searched, 0.1; written after looking at istd640-seq1-243), and `min_shape`
 (0.35: regions of 6 px or more less round than that are lines; 0: none dropped, 0.3;
-chosen on the clutter-only crops below, where it is also held out). Each folder's row
+chosen on the clutter-only crops below, where it is also held out). `clutter_speed` (1.5
+px/frame: faster tentative tracks that pass the motion and clutter tests are no sample of
+the clutter whose scores set the confirmation's level; inf: every track, the design before)
+was chosen on the unseen scenes above, and is in the grid to show what it does here; its
+value is `process`'s per-frame path's, and the bright points drifting 0.2 px/frame on
+istd640-seq1-243 were looked at to keep slower tracks in the sample. Each folder's row
 takes the setting of this grid that puts the most *other* folders at the goal (ties: the
 higher mean MOTA over them), so its figures are on a folder the setting was not chosen on.
 Two rules without a setting of their own were also written after looking at these folders
@@ -407,7 +495,7 @@ def _merge_check(points, truth):
 
 
 def _report(args, harbour_rows, mean_rows, real_rows, merge_notes, blob_rows,
-            blob_summary) -> str:
+            blob_summary, unseen_text) -> str:
     now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     merge = "\n".join(f"- seed {s}, {m}: {note}" for s, m, note in merge_notes)
     maritime = ", ".join(f"{k}={v}" for k, v in MARITIME.items())
@@ -442,6 +530,21 @@ Held out:
 
 {BLOB_HEADER}
 {chr(10).join(blob_rows[args.scenes:])}
+
+## Unseen scenes (bench_unseen's), the defaults
+
+The random scenes of `scripts/bench_unseen.py` (seed 0, scenes 0-{args.unseen - 1}: frame
+sizes 64-1024 px, uint8 / uint16 / float32, PSF sigma 0.4-2.5 px, SNR 3-10, 0-8 targets at
+0-7 px/frame in the scene, pans up to 6 px/frame with jitter, no clutter / clouds / a
+horizon edge / hot pixels; docs/results/unseen.md says how they are drawn), tracked with
+the defaults; gate max(3, 2.5 PSF sigma) px, bench_unseen's. No tracker setting was chosen
+on them before `clutter_speed`, which was (2026-12-06; the real folders', their crops' and
+the blob scenes' figures are the same with it and without). "Before": `clutter_speed` inf,
+every tentative track a sample of the clutter whose scores set the confirmation's level
+(`irdetect.track.confirm`). A scene is at the goal with MOTA and IDF1 >= 0.8 (issue 28's
+goal for the real folders).
+
+{unseen_text}
 
 ## Harbour scene (data/presets/harbour.toml, gate {HARBOUR_GATE:g} px)
 

@@ -218,6 +218,36 @@ def test_marginal_mover_meets_the_clutter_that_moves_as_far():
     assert not test.passes(track, None, 40)                  # before ``learn`` frames
 
 
+def test_a_fast_track_that_passes_the_motion_and_clutter_tests_is_no_clutter_sample():
+    # tentative tracks of 20 hits that end unconfirmed, each measured by the test: a
+    # straight one at 3 px/frame (a target that failed only the score level), one at 0.3
+    # px/frame (a bright point drifting by parallax) and a point that stays put (clutter)
+    test = ClutterTest((512, 640), false_tracks=0.001, floor=1e-6, window=30, learn=0)
+    rng = np.random.default_rng(5)
+    k = np.arange(20.0)
+
+    def ended(vx, scatter, score):
+        meas = np.column_stack([k, 100 + vx * k + rng.normal(0, scatter, 20),
+                                200 + rng.normal(0, scatter, 20), 0 * k, 0 * k,
+                                np.full(20, score)])
+        tr = SimpleNamespace(meas=list(meas), born=0, clutter=0)
+        test.measure(tr, 19)
+        test.ended(tr, 3)
+        return tr
+
+    fast, slow = ended(3.0, 0.1, 11.0), ended(0.3, 0.1, 11.0)
+    assert fast.speed == pytest.approx(3.0, abs=0.05) and slow.speed == pytest.approx(0.3, abs=0.05)
+    assert fast.E <= test.rate and slow.E <= test.rate and slow.moved >= 1.0
+    assert not test.clutter_like(fast) and test.clutter_like(slow)
+    ended(0.0, 0.5, 9.0)                                        # fails the motion test
+    assert sorted(test.ended_sample[:, 0]) == [9.0, 11.0]       # the slow point's; not the fast
+    # with clutter_speed inf (the design before) the fast target joins the sample
+    before = ClutterTest((512, 640), false_tracks=0.001, floor=1e-6, window=30, learn=0,
+                         clutter_speed=np.inf)
+    before.measure(fast, 19)
+    assert before.clutter_like(fast)
+
+
 def test_a_short_track_with_no_clutter_beside_it_meets_the_frames_clutter_density():
     # 4 hits on a line in 4 frames with no other region within the test's radius: by
     # the local count alone clutter could hardly make such a track (E far below the

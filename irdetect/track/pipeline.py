@@ -45,7 +45,8 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
           method: str = "fcm-pmht", regions: str = "detector", false_rate: float = 1.0,
           psf: float = 1.0, fraction: float = 0.5, false_tracks: float = 0.001,
           sigma: float = 1.0, max_speed: float = 16.0, learn_frames: int = 12,
-          motion_p: float = 0.001, guided_rate: float = 0.01, min_shape: float = 0.35,
+          motion_p: float = 0.001, clutter_speed: float = 1.5, guided_rate: float = 0.01,
+          min_shape: float = 0.35,
           sea_sky: bool = False, band_above: float = 5.0,
           band_below: float = 40.0, suppress_size: int = 15, k: float = 5.0,
           smooth: float = 1.0, tile: int = 32, min_contrast: float = 0.0,
@@ -113,6 +114,12 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     motion_p : float
         A tentative track's motion must be significant at this level against the scatter
         of its own hits (``irdetect.track.confirm.still_chance``), in (0, 1]; 1: not tested.
+    clutter_speed : float
+        px/frame against the scene: a tentative track that passes the confirmation's
+        motion and clutter tests and moves this fast or faster is no sample of the clutter
+        whose scores set the level a track must reach (``irdetect.track.confirm``: a target
+        that failed only that level raised it for the next; ``process``'s per-frame path
+        judges such tracks by their chain alone too); inf: every track.
     guided_rate : float
         The detector's regions: a confirmed track that no region of the frame is within
         ``GUIDED_PX`` px of is looked for there at the level white noise reaches this often
@@ -226,7 +233,8 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
                            max_speed=max_speed, radius=CLUTTER_RADIUS,
                            floor=false_rate / float(h * w) if detector else 0.0,
                            window=confirm_window, score_floor=level,
-                           learn=learn_frames, motion_p=motion_p)
+                           learn=learn_frames, motion_p=motion_p,
+                           clutter_speed=clutter_speed)
     common = dict(frame_interval=frame_interval, q0=q0, r=r, gate=gate,
                   confirm_hits=confirm_hits, confirm_window=confirm_window,
                   max_misses=max_misses, max_tracks=max_tracks, init_speed=init_speed,
