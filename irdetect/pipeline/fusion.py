@@ -385,9 +385,8 @@ def _leaving_tracks(detections, camera, params: dict, tracks, *, shape, starts,
     pos = track_positions(cand, mid, camera)                             # (n, windows, 2)
     seen = ((pos[..., 0] >= 0) & (pos[..., 0] <= w - 1)
             & (pos[..., 1] >= 0) & (pos[..., 1] <= h - 1)).sum(axis=1)
-    scans = np.minimum(seen, window)
     need = np.maximum(LEAVING_VOTES, [vote_threshold(params["vote_fraction"], int(n))
-                                      for n in scans])
+                                      for n in np.minimum(seen, window)])
     keep = (cand["n_points"] >= need) & (seen < len(starts))
     return cand[keep], need[keep]
 

@@ -241,7 +241,8 @@ class ClutterTest:
 
     def measure(self, track, frame: int) -> None:
         """Set a tentative track's ``E``, ``moved``, ``still`` (its ``still_chance``),
-        ``speed`` (its fit's, px/frame against the scene) and ``score`` (the median contrast of its hits: the peaks' local SNR) at ``frame``
+        ``speed`` (its fit's, px/frame against the scene) and ``score`` (the median
+        contrast of its hits: the peaks' local SNR) at ``frame``
         (``irdetect.track.tracker.Track``: its ``meas``, ``born`` and ``clutter``)."""
         track.speed = 0.0
         if len(track.meas) < 2:
@@ -252,7 +253,7 @@ class ClutterTest:
                                                     track.clutter)
             track.still = still_chance(meas[:, 0], meas[:, 1], meas[:, 2])
             span = float(np.ptp(meas[:, 0]))
-            if span > 0:
+            if span > 0:                 # ``moved`` is in units of 3 sqrt(2) sigma px
                 track.speed = track.moved * GATE * math.sqrt(2.0) * self.sigma / span
         track.score = float(np.median([m[5] for m in track.meas]))
 
@@ -297,8 +298,13 @@ class ClutterTest:
     def clutter_like(self, track) -> bool:
         """Whether a measured tentative track can be a sample of the clutter: not when it
         passes tests 1 and 2 and moves ``clutter_speed`` or faster (module notes)."""
-        return not (track.moved >= 1.0 and track.still <= self.still_level
-                    and track.E <= self.rate and track.speed >= self.clutter_speed)
+        return not (self._moves_unlike_clutter(track)
+                    and track.speed >= self.clutter_speed)
+
+    def _moves_unlike_clutter(self, track) -> bool:
+        """Tests 1 and 2 (module notes) of a measured tentative track."""
+        return (track.moved >= 1.0 and track.still <= self.still_level
+                and track.E <= self.rate)
 
     def ended(self, track, min_hits: int) -> None:
         """A tentative track that ends unconfirmed joins the clutter sample (score and
@@ -310,7 +316,6 @@ class ClutterTest:
     def passes(self, track, sample: np.ndarray | None, n_frames: int) -> bool:
         """Whether a measured tentative track passes the three tests after ``n_frames``
         frames (``sample``: that frame's ``ClutterTest.sample``)."""
-        return (track.moved >= 1.0 and track.still <= self.still_level
-                and track.E <= self.rate
+        return (self._moves_unlike_clutter(track)
                 and track.score >= self.level(sample, track.moved, n_frames))
 
