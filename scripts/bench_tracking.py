@@ -196,7 +196,7 @@ def unseen_run(index: int) -> dict:
     ``ALL_SAMPLED`` (module level for map_tasks)."""
     scene = bench_unseen.draw_scene(index, 0)
     frames, truth = bench_unseen.render_scene(scene)
-    gate = max(3.0, 2.5 * scene["psf_sigma"])           # bench_unseen's gate
+    gate = bench_unseen.scene_gate(scene)
     r = _run(frames, truth, gate)
     r.pop("points")
     before = _run(frames, truth, gate, **ALL_SAMPLED)

@@ -388,12 +388,12 @@ def run_scene(task: tuple) -> dict:
     frames, truth = render_scene(scene)
     scene["sim_seconds"] = time.perf_counter() - t0
     scene["image_speed"] = image_speed(truth)
-    scene["crowding"] = crowding(truth, max(3.0, 2.5 * scene["psf_sigma"]))
+    gate = scene_gate(scene)
+    scene["crowding"] = crowding(truth, gate)
     top = TOPS[scene["dtype"]]
     scene["clipped"] = ((np.count_nonzero(frames == 0) + np.count_nonzero(frames == top))
                         / frames.size if top is not None else 0.0)
     n, h, w = frames.shape
-    gate = max(3.0, 2.5 * scene["psf_sigma"])
     scene.update(gate=gate, error=None)
     try:
         run = fit_config(config, n)
@@ -417,6 +417,11 @@ def run_scene(task: tuple) -> dict:
         scene["error"] = f"{type(exc).__name__}: {exc}"
         scene["traceback"] = traceback.format_exc()
     return scene
+
+
+def scene_gate(scene: dict) -> float:
+    """The scoring gate G of a scene (``draw_scene``): max(3, 2.5 x PSF sigma) px."""
+    return max(3.0, 2.5 * scene["psf_sigma"])
 
 
 def image_speed(truth: np.ndarray) -> float:
