@@ -128,3 +128,21 @@ def test_degenerate_frames(method, kind):
 def test_bad_parameters_are_named(kwargs, name):
     with pytest.raises(ValueError, match=name):
         suppress(np.zeros((8, 8)), **kwargs)
+
+
+@pytest.mark.parametrize("t, h", [(31, 40), (44, 16), (3, 17), (12, 1)])
+def test_fixed_pattern_and_time_median_equal_numpy(t, h):
+    # banded and sorted in place (for speed and memory), the same values as np.median of
+    # the whole frames' 3x3 high-pass; heights that are not a multiple of the band, ties
+    import cv2
+
+    from irdetect.suppress import MEDIAN_ROWS, _fixed_pattern, _median_axis0
+
+    rng = np.random.default_rng(t)
+    full = rng.normal(100.0, 5.0, (t, h, 23)).astype(np.float32)
+    full[:, : h // 2] = np.round(full[:, : h // 2])
+    assert h % MEDIAN_ROWS or h == MEDIAN_ROWS
+    ref = np.median(full, axis=0).astype(np.float32)
+    assert np.array_equal(_median_axis0(full), ref)
+    hp = np.stack([f - cv2.medianBlur(f, 3) for f in full])
+    assert np.array_equal(_fixed_pattern(full), np.median(hp, axis=0).astype(np.float32))
