@@ -87,15 +87,13 @@ def track_values(det: np.ndarray, start: int, matched: np.ndarray, mid: float,
     """
     L, h, w = matched.shape
     x, y = _track_xy(det, start + np.arange(L), mid)                      # (N, L)
-    col = np.rint(x).astype(np.intp)
-    row = np.rint(y).astype(np.intp)
-    frame = np.arange(L)[None]
-    best = np.full(x.shape, -np.inf, np.float32)
-    for dy in range(-reach, reach + 1):              # the square, clipped to the frame
-        for dx in range(-reach, reach + 1):
-            v = matched[frame, np.clip(row + dy, 0, h - 1), np.clip(col + dx, 0, w - 1)]
-            np.maximum(best, v, out=best)
-    return best
+    side = np.arange(-reach, reach + 1)
+    # the square's rows and columns, clipped to the frame: (N, L, S) each
+    rows = np.clip(np.rint(y).astype(np.intp)[..., None] + side, 0, h - 1)
+    cols = np.clip(np.rint(x).astype(np.intp)[..., None] + side, 0, w - 1)
+    square = matched[np.arange(L)[None, :, None, None], rows[..., :, None],
+                     cols[..., None, :]]                                   # (N, L, S, S)
+    return square.max(axis=(2, 3)).astype(np.float32, copy=False)
 
 
 def track_mean(det: np.ndarray, blocks, mid: float) -> np.ndarray:
