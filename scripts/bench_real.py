@@ -533,6 +533,7 @@ def main(argv=None) -> int:
     if args.only:
         names = [n for n in names if n in args.only]
     t_all = time.perf_counter()
+    load_avg = os.getloadavg()[0]       # other jobs at the start make frames/s noisy
     rows = []
     every = {}
     for name in names:
@@ -557,7 +558,7 @@ def main(argv=None) -> int:
     loo = run_leave_one_out(every, cfg) if every and not args.no_loo else []
     total = time.perf_counter() - t_all
     write_report(Path(args.out), rows, trackpy is not None, total, variants,
-                 args.config, loo)
+                 args.config, loo, load_avg)
     print(f"wrote {args.out}")
     write_roc_figure(Path(args.out).with_name("real-roc.png"), rows)
     return 0
@@ -577,13 +578,15 @@ def write_roc_figure(path: Path, rows) -> None:
 
 
 def write_report(path: Path, rows, have_trackpy: bool, total: float, variants=(),
-                 config_path=None, loo=()) -> None:
+                 config_path=None, loo=(), load_avg: float = float("nan")) -> None:
     today = datetime.date.today().isoformat()
+    cores = os.cpu_count() or 1
+    busy = ": other jobs were running, so frames/s are noisy" if load_avg > 0.5 * cores else ""
     lines = [
         "# Real sequences: measured",
         "",
-        f"Produced by `scripts/bench_real.py` ({today}; {os.cpu_count()} cores shared with "
-        "other jobs, so frames/s are noisy). Data: ../shared/data/real (not part of the "
+        f"Produced by `scripts/bench_real.py` ({today}; {cores} cores, load average "
+        f"{load_avg:.1f} at the start{busy}). Data: ../shared/data/real (not part of the "
         "repository). DAUB sequences: Hui Bingwei, Song Zhiyong, Fan Hongqi, et al., \"A "
         "dataset for infrared image dim-small aircraft target detection and tracking under "
         "ground / air background\", Science Data Bank, 2019, DOI 10.11922/sciencedb.902. "
