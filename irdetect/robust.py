@@ -19,8 +19,7 @@ MAD_TO_SIGMA = 1.4826
 def sorted_median(v: np.ndarray, overwrite: bool = False) -> np.ndarray:
     """``np.median(v, axis=-1)`` (same values) by a full sort, which numpy vectorises:
     about 10x faster than np.median's partition on many short rows. ``overwrite``: sort
-    ``v`` (a contiguous array) in place, as ``np.median``'s ``overwrite_input``: no copy,
-    and on 16 x 640 rows of 44 values 2.5x faster than sorting a copy."""
+    ``v`` (a contiguous array) in place, as ``np.median``'s ``overwrite_input``: no copy."""
     if overwrite:
         v.sort(axis=-1)
     else:

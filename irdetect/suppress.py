@@ -573,11 +573,10 @@ def _median_axis0(stack: np.ndarray) -> np.ndarray:
     """``np.median(stack, axis=0)`` (same values) of a stack (T, H, W) -> float32 (H, W).
 
     Band by band of ``MEDIAN_ROWS`` rows, each pixel's time series is made contiguous (one
-    row per pixel) by ``cv2.transpose`` and sorted (``irdetect.robust.sorted_median``):
-    numpy's sort of the strided transposed view copies it far more slowly, and a band
-    holds a few MB where the whole stack's copies held 2 x T x H x W floats (31 frames of
-    640x512: 0.023 s and 4 MB at the peak, against 0.084 s and 42 MB for the sort of the
-    view).
+    row per pixel) by ``cv2.transpose`` and sorted in place
+    (``irdetect.robust.sorted_median``): numpy's sort of the strided transposed view
+    copies it far more slowly, and a band holds a few MB where the whole stack's copies
+    held 2 x T x H x W floats (measured: docs/results/throughput.md, "Footage").
     """
     t, h, w = stack.shape
     out = np.empty((h, w), np.float32)
@@ -621,7 +620,7 @@ def _registered(stack, past, camera, history, gap, tolerance, fixed_pattern, sam
             # only pixels whose source lies wholly inside the shifted frame
             x0, x1 = max(0, int(np.ceil(dx))), max(0, int(np.floor(w - 1 + dx)) + 1)
             y0, y1 = max(0, int(np.ceil(dy))), max(0, int(np.floor(h - 1 + dy)) + 1)
-            if x1 > x0 and y1 > y0:     # OpenCV adds in place on the views, 4x numpy's
+            if x1 > x0 and y1 > y0:     # OpenCV adds in place on the views (faster)
                 acc, seen = total[y0:y1, x0:x1], count[y0:y1, x0:x1]
                 cv2.add(acc, warped[y0:y1, x0:x1], dst=acc)
                 cv2.add(seen, 1.0, dst=seen)

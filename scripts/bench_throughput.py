@@ -711,19 +711,20 @@ def footage_report(data: dict) -> list[str]:
                   f"by this script on another checkout (`--footage-only`){label}."]
     lines += ["", head, rule]
 
-    def cells(name, n, cli, st):
+    def cells(n, cli, st):
+        """fps in-run, fps per CPU-s, RSS, fps in the stages, suppress share."""
         stages = sum(st["timings"].values())
         share = st["timings"].get("suppress", 0.0) / stages if stages > 0 else float("nan")
         return (fps(n, cli["run"]), fps(n, cli["cpu"]), f"{cli['rss_mb']:.0f}",
                 fps(n, stages), f"{100 * share:.0f} %")
 
     for name, n, size, cli, st in data["footage"]:
-        row = cells(name, n, cli, st)
-        line = f"| {name} | {n} | {size} | " + " | ".join(row) + " |"
+        line = f"| {name} | {n} | {size} | " + " | ".join(cells(n, cli, st)) + " |"
         if before and name in old:
-            b = cells(*[old[name][i] for i in (0, 1, 3, 4)])
-            gain = (sum(old[name][4]["timings"].values())
-                    / max(sum(st["timings"].values()), 1e-9))
+            _, n_b, _, cli_b, st_b = old[name]
+            b = cells(n_b, cli_b, st_b)
+            gain = (sum(st_b["timings"].values()) / n_b) / max(
+                sum(st["timings"].values()) / n, 1e-12)
             line += f" {b[0]} | {b[3]} | {gain:.2f} | {b[2]} | {b[4]} |"
         elif before:
             line += " | | | | |"
