@@ -65,8 +65,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT.parent / "shared" / "data" / "real"
 SIZES = ((256, 256), (240, 320), (512, 640))    # (height, width)
-STAGES = ("read", "suppress", "combine", "frame", "detect", "fuse", "correlate", "write",
-          "initiate")
+STAGES = ("read", "suppress", "combine", "frame", "detect", "fuse", "correlate", "operate",
+          "write", "initiate")
 TEMPORAL = '[suppress]\nmethod = "temporal"\n'
 #: frames/s goals of issues 19 and 27 (2 cores, end to end from HDF5, within 5x of the
 #: floor): (size, CLI run) -> fps; issue 9 had asked 3,000 and 500 of both profiles
@@ -481,7 +481,9 @@ def report(data: dict, figure: str | None = None) -> str:
         "",
         "`combine` includes the PSF-matched, standardised residual frames that the "
         "verification in `correlate` integrates along each chain; `correlate` includes that "
-        "verification (not in `fast`). With 2 workers the correlation of each window triple "
+        "verification (not in `fast`); `operate`: each window's operating point and its "
+        "detections' SNR along their tracks (timed since 2026-12-06; before, this work "
+        "was in no stage: the earlier runs' totals leave it out). With 2 workers the correlation of each window triple "
         "runs beside the next windows' front end; a stage's seconds then include waiting "
         "for the other thread (GIL, memory).",
         "",

@@ -114,7 +114,7 @@ def test_timings_name_every_stage(tmp_path):
     timings = {}
     list(iter_results(frames, timings=timings))
     assert set(timings) == {"read", "suppress", "combine", "frame", "detect", "fuse",
-                            "correlate"}
+                            "correlate", "operate"}
     assert all(v >= 0 for v in timings.values())
     with pytest.raises(ValueError, match="workers"):
         list(iter_results(frames, workers=0))

@@ -128,7 +128,9 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
         it. Each thread holds its own copy of a window's raw frames.
     timings : dict, optional
         When given, seconds spent per stage are added to it under ``read``, ``suppress``,
-        ``combine``, ``detect``, ``fuse``, ``correlate`` (summed over threads).
+        ``combine``, ``frame``, ``detect``, ``fuse``, ``correlate`` (summed over threads)
+        and ``operate`` (a window's operating point, its detections' SNR and support
+        along their tracks: ``pipeline.combined.Pending.emit``).
 
     Yields
     ------
@@ -234,10 +236,12 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
     def emit(done: Pending, segments) -> dict:
         """``done.emit`` with the windows beside it; the last windows of the sequence keep
         their frames for the ones after them, which have fewer windows ahead."""
+        t0 = time.perf_counter()
         k = int(np.searchsorted(starts, done.start))     # done's window index
         chunk = done.emit(segments, pending, reversed(emitted),
                           keep_frames=k >= len(starts) - beside)
         emitted.append(done)
+        lap(timings, "operate", t0)
         return chunk
 
     camera_done = 0              # frames whose /camera rows were emitted
