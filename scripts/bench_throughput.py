@@ -709,8 +709,11 @@ def footage_report(data: dict) -> list[str]:
     ]
     if before:
         label = f": {before['label']}" if before.get("label") else ""
+        untimed = ("" if any("operate" in r[4]["timings"] for r in before["footage"]) else
+                   " Its stages leave out `operate` (in no stage then), so the x of the "
+                   "stages is a lower bound.")
         lines += ["", f"Before: `{Path(before['path']).name}`, measured on {before['when']} "
-                  f"by this script on another checkout (`--footage-only`){label}."]
+                  f"by this script on another checkout (`--footage-only`){label}.{untimed}"]
     lines += ["", head, rule]
 
     def cells(n, cli, st):
