@@ -75,14 +75,14 @@ FIRST_ROUND = dict(ISSUE17, k=4.0, smooth=0.0, tile=0)
 #: the real-data settings chosen while building the per-frame detector's regions (issue
 #: 28), reported leave-one-out: the matched filter's sigma, the frames before the first
 #: confirmation and the motion's significance level (the defaults first)
+#: the design before the fast tracks that pass the motion and clutter tests were kept out
+#: of the score level's clutter sample (the unseen scenes' "before" column)
+ALL_SAMPLED = dict(clutter_speed=float("inf"))
 REAL_GRID = ([dict(psf=p, learn_frames=n) for p in (1.0, 0.6) for n in (12, 0)]
              + [dict(motion_p=m) for m in (0.01, 1.0)]
              + [dict(guided_rate=g) for g in (0.0, 0.1)]
              + [dict(min_shape=m) for m in (0.0, 0.3)]
-             + [dict(clutter_speed=float("inf"))])
-#: the design before the fast tracks that pass the motion and clutter tests were kept out
-#: of the score level's clutter sample (the unseen scenes' "before" column)
-ALL_SAMPLED = dict(clutter_speed=float("inf"))
+             + [ALL_SAMPLED])
 #: the line test's values tried on the clutter-only crops (the default, 0.35, among them)
 CROP_SHAPES = (0.0, 0.3, 0.35)
 #: the clutter-only crops are also tracked without the motion's significance test
