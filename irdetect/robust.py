@@ -14,6 +14,8 @@ import numpy as np
 
 #: 1.4826 * MAD is the standard deviation of a Gaussian.
 MAD_TO_SIGMA = 1.4826
+#: the upper quartile of a Gaussian, in standard deviations
+UPPER_QUARTILE_Z = 0.6745
 
 
 def sorted_median(v: np.ndarray, overwrite: bool = False) -> np.ndarray:
@@ -57,6 +59,15 @@ def median_mad_sigma(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if flat.any():
         sigma = np.where(flat, 1.2533 * dev.mean(axis=-1), sigma)
     return med, sigma
+
+
+def upper_sigma(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Median and upper spread of every row (last axis) of ``v``: the distance from the
+    median to the upper quartile in Gaussian standard deviations, (q75 - q50) / 0.6745.
+    A long lower tail does not widen it, as it widens 1.4826 x MAD (both sides); the scale
+    of a test that only high values fail (``irdetect.verify.local_significance``)."""
+    q50, q75 = np.quantile(np.asarray(v, np.float64), (0.5, 0.75), axis=-1)
+    return q50, (q75 - q50) / UPPER_QUARTILE_Z
 
 
 def tile_grid(height: int, width: int, tile: int) -> tuple[int, int, int, int]:

@@ -16,7 +16,8 @@ import cv2
 import numpy as np
 
 from irdetect.kernels.sampling import climb, patch_sums, row_order, track_sums
-from irdetect.robust import median, median_mad_sigma, tile_map, tile_samples
+from irdetect.robust import (median, median_mad_sigma, tile_map, tile_samples,
+                              upper_sigma)
 
 
 @dataclass(frozen=True)
@@ -338,27 +339,21 @@ def local_significance(evidence: Evidence, c: np.ndarray, v: np.ndarray,
     """
     if len(c) == 0:
         return np.zeros(0)
+    med, spread = upper_sigma(local_sums(evidence, c, v))
+    return (np.asarray(z, np.float64) - med) / np.maximum(spread, 1.0)
+
+
+def local_sums(evidence: Evidence, c: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The statistics (``track_significance`` units) of the parallel tracks of the local
+    test: shape (n, R x A), the tracks c + (r cos a, r sin a) at velocity v for r in
+    ``LOCAL_RADII`` and ``LOCAL_ANGLES`` angles a (staggered by half a step per radius)."""
     a = np.arange(LOCAL_ANGLES) * (2 * np.pi / LOCAL_ANGLES)
     ring = np.concatenate([r * np.column_stack([np.cos(a + i * np.pi / LOCAL_ANGLES),
                                                 np.sin(a + i * np.pi / LOCAL_ANGLES)])
                            for i, r in enumerate(LOCAL_RADII)])          # (R x A, 2)
     s, n_f = _parallel_sums(evidence, c, v, ring)
-    s = s.astype(np.float64) / (evidence.sigma * np.sqrt(n_f))
-    med, spread = upper_sigma(s)
-    return (np.asarray(z, np.float64) - med) / np.maximum(spread, 1.0)
+    return s.astype(np.float64) / (evidence.sigma * np.sqrt(n_f))
 
-
-def upper_sigma(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Median and upper spread of every row (last axis) of ``v``: the distance from the
-    median to the upper quartile in Gaussian sigmas, (q75 - q50) / 0.6745, which a long
-    lower tail does not widen (the robust sigma of the upper side, as 1.4826 x MAD is of
-    both)."""
-    q50, q75 = np.quantile(np.asarray(v, np.float64), (0.5, 0.75), axis=-1)
-    return q50, (q75 - q50) / UPPER_QUARTILE_Z
-
-
-#: the upper quartile of a Gaussian, in sigmas
-UPPER_QUARTILE_Z = 0.6745
 
 
 def _sample_sum(blocks, dts, cc, vv, shift=None, cap=None):

@@ -308,8 +308,8 @@ def test_local_test_spread_is_the_upper_one():
     # a target the camera holds still leaves its own trail in the registered background:
     # the parallel tracks on that side sum low (a long lower tail). The local test's
     # spread is the upper one, which that tail does not widen (daub-data22-a window 0).
-    from irdetect.robust import median_mad_sigma
-    from irdetect.verify import Evidence, local_significance, track_significance, upper_sigma
+    from irdetect.robust import median_mad_sigma, upper_sigma
+    from irdetect.verify import Evidence, local_significance, local_sums, track_significance
 
     rng = np.random.default_rng(5)
     g = rng.normal(0, 1, (200, 64))
@@ -334,13 +334,7 @@ def test_local_test_spread_is_the_upper_one():
     assert 6.5 < z[0] < 8                        # passes the verification (6.5)
     assert local[0] >= 5.0                       # and the default local test (3.5)
     # the MAD of both sides would have dropped it
-    import irdetect.verify as verify
-    a = np.arange(verify.LOCAL_ANGLES) * (2 * np.pi / verify.LOCAL_ANGLES)
-    ring = np.concatenate([r * np.column_stack([np.cos(a + i * np.pi / verify.LOCAL_ANGLES),
-                                                np.sin(a + i * np.pi / verify.LOCAL_ANGLES)])
-                           for i, r in enumerate(verify.LOCAL_RADII)])
-    s, n_f = verify._parallel_sums(ev, c, v, ring)
-    m2, s2 = median_mad_sigma(s.astype(np.float64) / np.sqrt(n_f))
+    m2, s2 = median_mad_sigma(local_sums(ev, c, v))
     assert (z[0] - m2[0]) / max(s2[0], 1.0) < 3.3
 
 
