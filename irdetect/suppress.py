@@ -222,7 +222,7 @@ def suppress(frames, previous=None, following=None, camera=None, long_past=None,
             return out
 
         def registered():
-            return _registered(stack, None if past is None else _clean(past), cam,
+            return _registered(stack, past, cam,
                                int(history), int(gap), int(tolerance), bool(fixed_pattern),
                                int(samples), int(size), future, lead_in == "future")
 
@@ -379,12 +379,26 @@ def _clean(stack: np.ndarray) -> np.ndarray:
     # integer frames are finite: skip the check (a full pass over the frames)
     if np.asarray(stack).dtype.kind not in "biu" and not np.isfinite(out).all():
         out = out.copy()
-        for t in range(len(out)):
-            bad = ~np.isfinite(out[t])
-            if bad.any():
-                good = out[t][~bad]
-                out[t][bad] = np.median(good) if good.size else 0.0
+        _fill_nonfinite(out)
     return out
+
+
+def _clean_into(stack: np.ndarray, out: np.ndarray) -> None:
+    """``_clean(stack)`` written into ``out`` (float32, the shape of ``stack``): no
+    float32 copy of its own."""
+    np.copyto(out, stack, casting="unsafe")
+    if np.asarray(stack).dtype.kind not in "biu" and not np.isfinite(out).all():
+        _fill_nonfinite(out)
+
+
+def _fill_nonfinite(stack: np.ndarray) -> None:
+    """In place: each frame's non-finite pixels take the median of its finite ones (0
+    when it has none)."""
+    for t in range(len(stack)):
+        bad = ~np.isfinite(stack[t])
+        if bad.any():
+            good = stack[t][~bad]
+            stack[t][bad] = np.median(good) if good.size else 0.0
 
 
 def _robust_sigma(v: np.ndarray) -> float:
@@ -589,9 +603,18 @@ def _median_axis0(stack: np.ndarray) -> np.ndarray:
 
 def _registered(stack, past, camera, history, gap, tolerance, fixed_pattern, samples, size,
                 future=None, ahead=False):
+    # past: raw frames (any dtype), converted straight into the one float32 stack of
+    # past, stack and future (no float32 copy of the past beside it)
     n_past = 0 if past is None else len(past)
-    parts = [a for a in (past, stack, future) if a is not None]
-    full = stack if len(parts) == 1 else np.concatenate(parts)
+    n_future = 0 if future is None else len(future)
+    full = stack
+    if n_past or n_future:
+        full = np.empty((n_past + len(stack) + n_future, *stack.shape[1:]), np.float32)
+        if n_past:
+            _clean_into(past, full[:n_past])
+        full[n_past:n_past + len(stack)] = stack
+        if n_future:
+            full[n_past + len(stack):] = future
     if fixed_pattern and len(full) >= 3:
         pattern = _fixed_pattern(full)
         if full is stack:
