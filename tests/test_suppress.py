@@ -123,6 +123,26 @@ def test_degenerate_frames(method, kind):
     assert noise_sigma(res[0]) > 0
 
 
+def test_registered_cleans_the_past_it_is_given_and_leaves_it_untouched():
+    # the past frames go straight into the registered background's float32 stack: their
+    # non-finite pixels take their frame's median there, as the window's own frames do,
+    # and the caller's array is not written
+    rng = np.random.default_rng(4)
+    frames = rng.normal(100, 5, (30, 32, 40)).astype(np.float64)
+    past, stack = frames[:19].copy(), frames[19:]
+    past[3, 5:9, 7:12] = np.nan
+    past[10, 0, 0] = np.inf
+    given = past.copy()
+    cleaned = past.copy()
+    for f in cleaned:
+        f[~np.isfinite(f)] = np.median(f[np.isfinite(f)])
+    camera = np.column_stack([np.linspace(0, 6, 30), np.zeros(30)])
+    res = suppress(stack, previous=past, camera=camera, method="registered")
+    ref = suppress(stack, previous=cleaned, camera=camera, method="registered")
+    assert np.isfinite(res).all() and np.array_equal(res, ref)
+    assert np.array_equal(past, given, equal_nan=True)
+
+
 @pytest.mark.parametrize("kwargs, name", [
     ({"method": "gauss"}, "method"), ({"size": 4}, "size"), ({"size": 1}, "size"),
     ({"guard": 4, "size": 9}, "guard"), ({"history": 0}, "history")])
