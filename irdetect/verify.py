@@ -333,9 +333,9 @@ def local_significance(evidence: Evidence, c: np.ndarray, v: np.ndarray,
     The spread is the upper one: a false alarm is a parallel track that sums high, and
     the low side is often long where the background over-estimates, above all about a
     target that the camera holds still, whose own trail in the registered background
-    (dilated by ``tolerance``) sinks the tracks beside it (daub-data22-a, frames 0-35:
-    sums -14 to 3.1, two-sided spread 3.6, upper 1.9). With the MAD of both sides
-    that target's track stood 3.0 spreads out and was dropped.
+    (dilated by ``tolerance``) sinks the tracks beside it (daub-data22-a, frames 0-35,
+    a scratch measurement: sums -14 to 3.1, two-sided spread 3.6, upper 1.9). With the
+    MAD of both sides that target's track stood 3.0 spreads out and was dropped.
     """
     if len(c) == 0:
         return np.zeros(0)
@@ -353,7 +353,6 @@ def local_sums(evidence: Evidence, c: np.ndarray, v: np.ndarray) -> np.ndarray:
                            for i, r in enumerate(LOCAL_RADII)])          # (R x A, 2)
     s, n_f = _parallel_sums(evidence, c, v, ring)
     return s.astype(np.float64) / (evidence.sigma * np.sqrt(n_f))
-
 
 
 def _sample_sum(blocks, dts, cc, vv, shift=None, cap=None):
