@@ -277,6 +277,29 @@ def test_a_turning_target_is_one_track_and_two_crossing_targets_are_two():
     assert len(tracks) == 2 and set(tracks["n_points"]) == {5}
 
 
+def test_two_detections_make_a_track_only_when_their_own_velocities_agree():
+    # a short sequence asks for 2 votes; any two detections of two windows lie on a line,
+    # so each detection's own velocity must agree with the line's
+    det = _windows([100.0, 136.0], [50.0, 50.0])               # 3 px/frame along x
+    det["vx"], det["vy"] = 3.0, 0.0
+    config = ProcessConfig()
+    tracks = initiate_tracks(det, config)
+    assert len(tracks) == 1 and abs(tracks["vx"][0] - 3.0) < 0.05
+    # the same two detections, each seen still (velocity 0): 1.5 px/frame x 5.5 frames
+    # of disagreement is more than the 4.5-px gate
+    still = det.copy()
+    still["vx"] = 0.0
+    assert len(initiate_tracks(still, config)) == 0
+    # without velocities (NaN) the two positions alone decide, as before
+    unknown = det.copy()
+    unknown["vx"], unknown["vy"] = np.nan, np.nan
+    assert len(initiate_tracks(unknown, config)) == 1
+    # three detections on the line are a line of their own whatever their velocities
+    three = _windows([100.0, 136.0, 172.0], [50.0, 50.0, 50.0])
+    three["vx"], three["vy"] = 0.0, 0.0
+    assert len(initiate_tracks(three, config)) == 1
+
+
 def test_a_target_that_crosses_the_frame_in_a_few_windows_is_a_track_cut_to_the_frame():
     # 11 windows of 12 frames; a target at 5 px/frame crosses the 320-px frame in windows
     # 2-6 (5 detections, under the 0.6 x 10 votes of a line inside throughout), a line

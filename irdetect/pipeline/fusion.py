@@ -276,6 +276,7 @@ def initiate_tracks(detections: np.ndarray, config: ProcessConfig,
     need = max(2, vote_threshold(ic.vote_fraction, min(scans, ic.window or scans)))
     gate = float(ic.gate * ic.sigma)
     out = tracks[_distinct_tracks(tracks, detections, camera, gate, need)]
+    out = out[_lines_of_their_own(out, detections, camera, gate)]
     if shape is not None and starts is not None and len(starts) >= LEAVING_VOTES:
         extra, votes = _leaving_tracks(detections, camera, params, out, shape=shape,
                                        starts=np.asarray(starts), length=int(length))
@@ -286,6 +287,37 @@ def initiate_tracks(detections: np.ndarray, config: ProcessConfig,
         out = _inside_frame(out, camera, shape)
     out["track_id"] = np.arange(len(out))
     return out
+
+
+def _lines_of_their_own(tracks, detections, camera, gate: float) -> np.ndarray:
+    """Mask of the tracks that are more than a line through two detections.
+
+    Any two detections of different windows lie on a line, so a track that fewer than
+    ``LEAVING_VOTES`` detections voted for or support (a sequence of 3 windows asks for 2
+    votes) has no evidence of its own in their positions. Each detection carries its own image
+    velocity, measured over its window (its per-frame track's or its chain's); such a
+    track is kept only when that velocity agrees with the line's at the detection: the
+    detection moved on with its own velocity to either end of its window stays within
+    ``gate`` px of where the line moves it, |v - v_line| (frame_end - frame_start) / 2 <=
+    ``gate``. A line's image velocity is its own, plus the camera's over the window for a
+    ``scene`` track. A detection without a velocity (NaN) does not judge."""
+    from irdetect.initiate import camera_at
+
+    keep = np.ones(len(tracks), bool)
+    if not len(tracks):
+        return keep
+    support = _support(tracks, detections, camera, gate)[0]
+    few = (support.sum(1) < LEAVING_VOTES) | (tracks["n_points"] < LEAVING_VOTES)
+    for i in np.flatnonzero(few):               # a loop over a few tracks
+        det = detections[support[i]]
+        v = np.tile([tracks["vx"][i], tracks["vy"][i]], (len(det), 1))
+        span = (det["frame_end"] - det["frame_start"]).astype(float)
+        if tracks["scene"][i] and camera is not None:
+            ends = camera_at(camera, np.concatenate([det["frame_start"], det["frame_end"]]))
+            v += (ends[len(det):] - ends[:len(det)]) / np.maximum(span, 1.0)[:, None]
+        miss = np.hypot(det["vx"] - v[:, 0], det["vy"] - v[:, 1]) * 0.5 * span
+        keep[i] = not (miss > gate).any()          # NaN velocities compare False
+    return keep
 
 
 def _inside_frame(tracks, camera, shape) -> np.ndarray:
