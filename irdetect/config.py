@@ -104,13 +104,18 @@ class FastConfig:
     """The fast band (beyond the paper; docs/detection.md): a second ``dp`` merit per
     window that follows the camera's motion with a wide radius, a point test on it, and
     chains in scene coordinates, for targets up to ``radius`` px/frame against the scene
-    (``irdetect.pipeline``). ``radius = 0`` turns it off (the paper's single band)."""
+    (``irdetect.pipeline``). ``radius = 0`` turns it off (the paper's single band).
+    ``scene``: with it, the paper's band once more in scene coordinates (band 2: its
+    narrow merit following the camera, its detection and chains), for targets slow
+    against the scene under a camera that moves; windows whose camera moves by no whole
+    pixel skip it."""
 
     radius: int = 6
     k: float = 3.5
     sigma: str = "global"
     extent: float = 2.0
     max_deviation: float = 20.0
+    scene: bool = True
 
 
 @dataclass(frozen=True)

@@ -89,3 +89,21 @@ def test_dim_targets_keep_every_window_the_verification_confirmed():
     assert len(off["detections"]) >= 10
     np.testing.assert_array_equal(on["detections"][["x", "y"]], off["detections"][["x", "y"]])
     assert np.all(on["detections"]["level"] > 3.5)
+
+
+def test_registered_mean_adds_up_structure_at_rest_in_the_scene():
+    from irdetect.pipeline.fusion import dilated_sum, registered_mean
+
+    # a point at rest in the scene, the camera moving 3 px/frame along x: in frame t it
+    # is at x = 20 + 3 t; the reference is frame 4's offset
+    frames = np.zeros((8, 32, 64), np.float32)
+    offsets = np.column_stack([3.0 * np.arange(8), np.zeros(8)])
+    for t in range(8):
+        frames[t, 10, 20 + 3 * t] = 1.0
+    moved = registered_mean([(frames[:4], offsets[:4]), (frames[4:], offsets[4:])],
+                            offsets[4])
+    assert moved[10, 32] == pytest.approx(1.0)           # every frame's sample, in place
+    assert (dilated_sum(frames) / 8).max() == pytest.approx(1 / 8)   # fixed in the image
+    # a pixel that only some moved frames cover takes the mean of those (not of zeros)
+    ones = registered_mean([(np.ones_like(frames), offsets)], offsets[4])
+    assert np.allclose(ones, 1.0)

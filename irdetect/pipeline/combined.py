@@ -22,7 +22,8 @@ from irdetect.detect import detect
 from irdetect.fuse import fuse
 from irdetect.peaks import frame_level, frame_peaks
 from irdetect.operating import integrated_map, map_threshold, significance
-from irdetect.pipeline.fusion import along_track, dilated_sum, track_mean, track_values
+from irdetect.pipeline.fusion import (along_track, dilated_sum, registered_mean, track_mean,
+                                      track_values)
 from irdetect.pipeline.timing import lap
 from irdetect.suppress import suppress
 from irdetect.verify import DP_LEADS, Evidence, matched_frame, noise_level, standardise
@@ -39,9 +40,14 @@ def correlate_windows(triple, cc, params: "StageParams", timings: dict | None):
     parts = [band_correlation(triple, 0, cc.step, evidence, params.correlate)]
     if params.fast:
         frames, cam = triple_camera(triple)
+        shift = None if evidence is None else cam[np.searchsorted(frames, evidence.index)]
         scene = None if evidence is None else dataclasses.replace(
-            evidence, shift=cam[np.searchsorted(frames, evidence.index)], leads=FAST_LEADS)
+            evidence, shift=shift, leads=FAST_LEADS)
         parts.append(band_correlation(triple, 1, cc.step, scene, params.fast_correlate, cc.length))
+        if params.scene and any((p.table["band"] == 2).any() for p in triple):
+            slow = None if evidence is None else dataclasses.replace(evidence, shift=shift)
+            parts.append(band_correlation(triple, 2, cc.step, slow, params.correlate,
+                                          cc.length))
     corr = parts[0] if len(parts) == 1 else Correlation(
         segments=np.concatenate([c.segments for c in parts]),
         index=np.concatenate([c.index for c in parts]),
@@ -58,6 +64,11 @@ def correlate_windows(triple, cc, params: "StageParams", timings: dict | None):
 FAST_LEADS = (0.0, 1.0)
 
 
+#: the bands whose merit follows the camera and whose chains are in scene coordinates:
+#: the fast band (1) and the paper's band following the camera (2, ``fast.scene``)
+SCENE_BANDS = (1, 2)
+
+
 def triple_camera(triple) -> tuple[np.ndarray, np.ndarray]:
     """(frames (F,), offsets (F, 2)): the camera's offsets of the 3 windows' frames."""
     frames = np.concatenate([np.arange(p.start, p.start + len(p.camera)) for p in triple])
@@ -65,12 +76,13 @@ def triple_camera(triple) -> tuple[np.ndarray, np.ndarray]:
 
 
 def band_correlation(triple, band: int, step: int, evidence, kwargs, length: int = 0) -> Correlation:
-    """``correlate`` on one band's points of 3 windows. Band 1 is in scene coordinates:
-    its points (the merit's, in the image of each window's last frame) lose that frame's
-    camera offset, and its verified positions get the offset at their report time."""
+    """``correlate`` on one band's points of 3 windows. Bands 1 and 2 are in scene
+    coordinates: their points (the merit's, in the image of each window's last frame)
+    lose that frame's camera offset, and their verified positions get the offset at
+    their report time."""
     rows = [np.flatnonzero(p.table["band"] == band) for p in triple]
     tables_ = [p.table[r] for p, r in zip(triple, rows)]
-    if band == 1:
+    if band in SCENE_BANDS:
         for t, p in zip(tables_, triple):
             t["x"] -= p.camera[length - 1, 0]
             t["y"] -= p.camera[length - 1, 1]
@@ -78,7 +90,7 @@ def band_correlation(triple, band: int, step: int, evidence, kwargs, length: int
     index = np.column_stack([r[corr.index[:, i]] for i, r in enumerate(rows)]) \
         if len(corr.index) else corr.index
     positions, segments = corr.positions, corr.segments
-    if band == 1 and len(segments):
+    if band in SCENE_BANDS and len(segments):
         frames, cam = triple_camera(triple)
         positions = positions.copy()
         for i, (p, (fx, fy)) in enumerate(zip(triple, (("x1", "y1"), ("x2", "y2"),
@@ -121,6 +133,9 @@ class StageParams:
         self.fast_fuse = {**self.fuse, "extent": fast.extent}
         self.fast_correlate = {**self.correlate, "max_speed": float(fast.radius),
                                "max_deviation": fast.max_deviation}
+        # band 2: the paper's band once more with its merit following the camera, for
+        # targets slow against the scene that a moving camera moves in the image
+        self.scene = self.fast and fast.scene
         # the per-frame path finds its peaks in the same matched frames
         self.frame = config.frame.enabled
         self.frame_rate = config.frame.false_rate
@@ -153,11 +168,13 @@ def front(block, previous, params: StageParams, timings: dict | None, following=
             cv2.GaussianBlur(r, (0, 0), params.psf, dst=r, borderType=cv2.BORDER_REFLECT)
     done = {"dp_smooth": 0.0} if presmoothed else {}
     comb = combine(residual, **{**params.combine, **done})[0]
-    fast = None
+    fast = scene = None
     if params.fast:
         n_prev = 0 if previous is None else len(previous)
         window_camera = None if camera is None else camera[n_prev:n_prev + len(residual)]
         fast = combine(residual, window_camera, **{**params.fast_combine, **done})[0]
+        if params.scene and window_camera is not None and camera_steps(window_camera):
+            scene = combine(residual, window_camera, **{**params.combine, **done})[0]
     matched = None
     if params.matched:
         # the residuals become the matched frames in place (no second window of frames)
@@ -172,14 +189,27 @@ def front(block, previous, params: StageParams, timings: dict | None, following=
         t = lap(timings, "frame", t)
     det = detect(comb, **params.detect)
     det_fast = None if fast is None else detect(fast, **params.fast_detect)
+    det_scene = None if scene is None else detect(scene, **params.detect)
     t = lap(timings, "detect", t)
     cand = fuse(det, comb, **params.fuse)
     if fast is not None:
         more = fuse(det_fast, fast, **params.fast_fuse)
         more["band"] = 1
         cand = np.concatenate([cand, more])
+    if scene is not None:
+        more = fuse(det_scene, scene, **params.fuse)
+        more["band"] = 2
+        cand = np.concatenate([cand, more])
     lap(timings, "fuse", t)
     return cand, det.count, matched, peaks
+
+
+def camera_steps(offsets) -> bool:
+    """Whether the camera moves the scene by a whole pixel or more between any two frames
+    of a window (``offsets`` (L, 2)): otherwise a merit that follows it is the one that
+    does not (``combine``: the rounded offsets' differences)."""
+    r = np.round(np.asarray(offsets, float))
+    return bool(len(r) > 1 and np.ptp(r, axis=0).max() >= 1)
 
 
 def evidence_of(pending, cc) -> Evidence | None:
@@ -288,7 +318,8 @@ class Pending:
         if self.matched is not None:
             det["snr"], det["support"] = along_track(det, self.matched, self.start,
                                                      self.peaks, self.radius)
-            blocks = self._operating_point(det, ahead, behind)
+            scene = np.isin(c["band"][keep], SCENE_BANDS)
+            blocks = self._operating_point(det, ahead, behind, scene)
             # a chain is a straight path over its windows: where the target turned (or
             # left) its position in this window is an extrapolation; the window's own
             # frames tell, read within the correlation's tolerance of the positions
@@ -310,12 +341,19 @@ class Pending:
             self._dilated_sum = dilated_sum(self.matched)
         return self._dilated_sum
 
-    def _operating_point(self, det: np.ndarray, ahead, behind) -> None:
+    def _operating_point(self, det: np.ndarray, ahead, behind, scene=None) -> None:
         """``significance`` and ``level`` of the window's detections on the integrated
         map of ``OPERATING_WINDOWS`` windows: this one and the next ones a chain from it
         spans, or the ones before it at the sequence's end (those that do not overlap
         it): the 36 frames the verification summed, so a target integrates as it did
         there while residue that persists keeps its spread (``irdetect.operating``).
+        The detections of the scene bands (``scene``, a mask), whose chains summed in
+        scene coordinates, are also judged on the map of those frames moved with the
+        camera (``fusion.registered_mean``) when it moves: structure at rest in the scene
+        persists there, and a map fixed in the image smears it. Their significance is
+        read on that map and their level is the larger of the two maps' (a camera whose
+        offsets misregister part of the frame, a zoom, smears that part in the moved
+        map instead).
         Returns those windows (Pending, this one first)."""
         blocks = [self]
         for side in (ahead, behind):
@@ -333,12 +371,27 @@ class Pending:
         det["significance"] = significance(integrated, along, det["x"], det["y"])
         if self.false_rate > 0:
             det["level"] = map_threshold(integrated[0], self.false_rate, frames)
+        offsets = [p.camera[:len(p.matched)] for p in blocks]
+        if scene is not None and scene.any() and camera_steps(np.concatenate(offsets)):
+            t = np.arange(len(self.matched))
+            ref = [np.interp((len(t) - 1) / 2.0, t, self.camera[:len(t), i]) for i in (0, 1)]
+            moved = integrated_map(registered_mean([(p.matched, o) for p, o in
+                                                    zip(blocks, offsets)], ref))
+            det["significance"][scene] = significance(moved, along[scene], det["x"][scene],
+                                                      det["y"][scene])
+            if self.false_rate > 0:
+                det["level"][scene] = np.fmax(det["level"][scene],
+                                              map_threshold(moved[0], self.false_rate, frames))
         return blocks
 
     def _merge_duplicates(self) -> None:
         """One target split into two fused points, each confirmed by a different segment
         (windows k-2..k and k-1..k+1), is one detection: of two confirmed points whose
-        verified positions lie within ``tolerance`` px, the lower-scoring is unconfirmed."""
+        verified positions lie within ``tolerance`` px, the lower-scoring is unconfirmed,
+        and a point of band 2 (the paper's band following the camera) against one of
+        another band: band 2 is there for the targets the others miss, and where both
+        see one the paper's own band keeps it (its operating point reads the map it
+        integrated in)."""
         rows = np.flatnonzero(self.table["confirmed"] & np.isfinite(self.pos[:, 0]))
         if len(rows) < 2:
             return
@@ -347,5 +400,9 @@ class Pending:
             ra, rb = rows[a], rows[b]
             if not (self.table["confirmed"][ra] and self.table["confirmed"][rb]):
                 continue
-            lose = rb if self.seg_score[ra] >= self.seg_score[rb] else ra
+            band = self.table["band"]
+            if (band[ra] == 2) != (band[rb] == 2):
+                lose = ra if band[ra] == 2 else rb
+            else:
+                lose = rb if self.seg_score[ra] >= self.seg_score[rb] else ra
             self.table["confirmed"][lose] = False

@@ -53,6 +53,42 @@ def dilated_sum(matched: np.ndarray) -> np.ndarray:
     return out
 
 
+def registered_mean(blocks, ref) -> np.ndarray:
+    """The mean of matched frames, each dilated by 3 x 3 (as ``dilated_sum``) and moved by
+    the camera's whole-pixel motion into the image of a reference frame: structure at
+    rest in the scene adds up where it lies in that frame, as it does along a chain in
+    scene coordinates.
+
+    Parameters
+    ----------
+    blocks : sequence of (ndarray of shape (L_j, H, W), ndarray of shape (L_j, 2))
+        Matched standardised frames and the camera's offsets (x, y px) of each.
+    ref : array_like of shape (2,)
+        The reference frame's offset: a scene point at p + C_t in frame t is at
+        p + ``ref`` there, so frame t moves by round(ref - C_t).
+
+    Returns
+    -------
+    ndarray of float32 of shape (H, W)
+        The mean over the frames that cover each pixel (0 where none does).
+    """
+    first = blocks[0][0]
+    h, w = first.shape[1:]
+    total = np.zeros((h, w), np.float32)
+    count = np.zeros((h, w), np.float32)
+    for matched, offsets in blocks:      # a loop over a few windows
+        for f, c in zip(matched, offsets):   # ... and their frames
+            dx, dy = (int(v) for v in np.round(np.asarray(ref, float) - c))
+            if abs(dx) >= w or abs(dy) >= h:
+                continue
+            d = cv2.dilate(f, _NEIGHBOURS)
+            src = d[max(0, -dy):h - max(0, dy), max(0, -dx):w - max(0, dx)]
+            ys, xs = slice(max(0, dy), h - max(0, -dy)), slice(max(0, dx), w - max(0, -dx))
+            total[ys, xs] += src
+            count[ys, xs] += 1.0
+    return np.divide(total, count, out=np.zeros_like(total), where=count > 0)
+
+
 def _track_xy(det: np.ndarray, times: np.ndarray, mid: float):
     """Positions (x, y px) of detections' straight tracks at frames ``times`` (N, F)."""
     t = np.asarray(times, np.float64) - mid
