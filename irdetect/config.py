@@ -107,8 +107,8 @@ class FastConfig:
     (``irdetect.pipeline``). ``radius = 0`` turns it off (the paper's single band).
     ``scene``: with it, the paper's band once more in scene coordinates (band 2: its
     narrow merit following the camera, its detection and chains), for targets slow
-    against the scene under a camera that moves; windows whose camera moves by no whole
-    pixel skip it."""
+    against the scene under a camera that moves; windows whose camera moves less than half
+    a pixel per frame on average skip it."""
 
     radius: int = 6
     k: float = 3.5

@@ -241,6 +241,16 @@ def test_targets_are_found_through_a_panning_shaking_camera(seed):
     assert np.sqrt(((cam - truth) ** 2).mean()) < 1.0 and np.abs(cam - truth).max() < 2.0
 
 
+def test_band_2_runs_where_the_camera_outruns_the_papers_merit():
+    from irdetect.pipeline.combined import camera_outruns
+
+    t = np.arange(12.0)[:, None]
+    assert not camera_outruns(t * [0.1, 0.05], 1)      # offsets that follow drifting clouds
+    assert not camera_outruns(np.zeros((12, 2)), 1)
+    assert camera_outruns(t * [0.4, 0.4], 1)           # 0.57 px/frame
+    assert camera_outruns(t * [-4.0, 1.0], 1) and not camera_outruns(t * [-4.0, 1.0], 9)
+
+
 @pytest.mark.parametrize("seed", [1, 3])
 def test_a_target_slow_in_the_scene_under_a_fast_pan_is_band_2s(seed):
     # 0.2 px/frame against clouds that pan 4 px/frame: 4 px/frame in the image, past the

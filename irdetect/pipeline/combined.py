@@ -173,7 +173,8 @@ def front(block, previous, params: StageParams, timings: dict | None, following=
         n_prev = 0 if previous is None else len(previous)
         window_camera = None if camera is None else camera[n_prev:n_prev + len(residual)]
         fast = combine(residual, window_camera, **{**params.fast_combine, **done})[0]
-        if params.scene and window_camera is not None and camera_steps(window_camera):
+        if params.scene and window_camera is not None and camera_outruns(
+                window_camera, params.combine["dp_radius"]):
             scene = combine(residual, window_camera, **{**params.combine, **done})[0]
     matched = None
     if params.matched:
@@ -210,6 +211,16 @@ def camera_steps(offsets) -> bool:
     does not (``combine``: the rounded offsets' differences)."""
     r = np.round(np.asarray(offsets, float))
     return bool(len(r) > 1 and np.ptp(r, axis=0).max() >= 1)
+
+
+def camera_outruns(offsets, radius: float) -> bool:
+    """Whether the camera moves the scene, over a window (``offsets`` (L, 2)), by at least
+    half the paper's merit's reach (``radius`` px/frame) on average: a target at rest in
+    the scene then moves in the image faster than that merit gathers it, and band 2 is
+    worth its cost (a still camera, or offsets that follow clouds drifting 0.1 px/frame,
+    leave it to band 0)."""
+    c = np.asarray(offsets, float)
+    return bool(len(c) > 1 and np.hypot(*(c[-1] - c[0])) >= 0.5 * radius * (len(c) - 1))
 
 
 def evidence_of(pending, cc) -> Evidence | None:
