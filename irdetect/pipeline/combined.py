@@ -205,14 +205,6 @@ def front(block, previous, params: StageParams, timings: dict | None, following=
     return cand, det.count, matched, peaks
 
 
-def camera_steps(offsets) -> bool:
-    """Whether the camera moves the scene by a whole pixel or more between any two frames
-    of a window (``offsets`` (L, 2)): otherwise a merit that follows it is the one that
-    does not (``combine``: the rounded offsets' differences)."""
-    r = np.round(np.asarray(offsets, float))
-    return bool(len(r) > 1 and np.ptp(r, axis=0).max() >= 1)
-
-
 def camera_outruns(offsets, radius: float) -> bool:
     """Whether the camera moves the scene, over a window (``offsets`` (L, 2)), by at least
     half the paper's merit's reach (``radius`` px/frame) on average: a target at rest in
@@ -360,8 +352,8 @@ class Pending:
         there while residue that persists keeps its spread (``irdetect.operating``).
         The detections of band 2 (``scene``, a mask), whose chains summed in scene
         coordinates at the paper's slow speeds, are also judged on the map of those
-        frames moved with the camera (``fusion.registered_mean``) when it moves:
-        structure at rest in the scene persists there as it does along such a chain,
+        frames moved with the camera (``fusion.registered_mean``): structure at rest in
+        the scene persists there as it does along such a chain,
         and a map fixed in the image smears it. Their significance is read on that map
         and their level is the larger of the two maps' (a camera whose offsets
         misregister part of the frame, a zoom, smears that part in the moved map
@@ -384,12 +376,11 @@ class Pending:
         det["significance"] = significance(integrated, along, det["x"], det["y"])
         if self.false_rate > 0:
             det["level"] = map_threshold(integrated[0], self.false_rate, frames)
-        offsets = [p.camera[:len(p.matched)] for p in blocks]
-        if scene is not None and scene.any() and camera_steps(np.concatenate(offsets)):
+        if scene is not None and scene.any():       # band 2 ran: the camera moved
             t = np.arange(len(self.matched))
             ref = [np.interp((len(t) - 1) / 2.0, t, self.camera[:len(t), i]) for i in (0, 1)]
-            moved = integrated_map(registered_mean([(p.matched, o) for p, o in
-                                                    zip(blocks, offsets)], ref))
+            moved = integrated_map(registered_mean([(p.matched, p.camera[:len(p.matched)])
+                                                    for p in blocks], ref))
             det["significance"][scene] = significance(moved, along[scene], det["x"][scene],
                                                       det["y"][scene])
             if self.false_rate > 0:

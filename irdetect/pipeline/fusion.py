@@ -329,14 +329,15 @@ def _lines_of_their_own(tracks, detections, camera, gate: float) -> np.ndarray:
     """Mask of the tracks that are more than a line through two detections.
 
     Any two detections of different windows lie on a line, so a track that fewer than
-    ``LEAVING_VOTES`` detections voted for or support (a sequence of 3 windows asks for 2
-    votes) has no evidence of its own in their positions. Each detection carries its own image
-    velocity, measured over its window (its per-frame track's or its chain's); such a
-    track is kept only when that velocity agrees with the line's at the detection: the
-    detection moved on with its own velocity to either end of its window stays within
-    ``gate`` px of where the line moves it, |v - v_line| (frame_end - frame_start) / 2 <=
-    ``gate``. A line's image velocity is its own, plus the camera's over the window for a
-    ``scene`` track. A detection without a velocity (NaN) does not judge."""
+    ``LEAVING_VOTES`` detections voted for or support (a sequence of 3 windows asks for
+    2 votes) has no evidence of its own in their positions. Each detection carries its
+    own image velocity, measured over its window (its per-frame track's or its chain's);
+    such a track is kept only when that velocity agrees with the line's at the
+    detection: moved on with its own velocity to either end of its window, the detection
+    stays within ``gate`` px of where the line moves it, |v - v_line| (frame_end -
+    frame_start) / 2 <= ``gate``. A line's image velocity is its own, plus the camera's
+    over the window for a ``scene`` track. A detection without a velocity (NaN) does not
+    judge."""
     from irdetect.initiate import camera_at
 
     keep = np.ones(len(tracks), bool)
