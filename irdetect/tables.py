@@ -56,7 +56,8 @@ FRAME_TRACK = np.dtype([
 
 #: Every fused point before correlation; ``confirmed`` marks those kept; ``band`` the
 #: combined frame it was found in (0: the paper's, image coordinates; 1: the fast band's
-#: merit that follows the scene, ``irdetect.pipeline``).
+#: merit that follows the scene; 2: the paper's merit following the scene, ``fast.scene``;
+#: ``irdetect.pipeline``).
 CANDIDATE = np.dtype([
     ("x", "<f8"), ("y", "<f8"), ("frame_start", "<i8"), ("frame_end", "<i8"),
     ("combined_frame", "<i8"), ("intensity", "<f8"), ("score", "<f8"),
