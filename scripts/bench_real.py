@@ -37,12 +37,12 @@ Usage: .venv/bin/python scripts/bench_real.py [--out docs/results/real.md] [--on
 
 Section 3 (variants) reruns irdetect on every sequence with one option changed at a
 time (the previous default, the alternatives measured in docs/real.md), totals only.
-Section 5 (added pan) runs the defaults on each sequence seen through a window that pans
-over its frames (``panned``): the same targets and clutter under a camera that moves 2, 4
-and 6 px/frame more, the regime of real panning clips none of whose settings were chosen.
 Section 4 (leave-one-out) reruns it with every value of each setting chosen on these
 sequences (``CHOSEN``) and reports, per sequence, the figures of the value that does
 best on the other sequences.
+Section 5 (added pan) runs the defaults on each sequence seen through a window that pans
+over its frames (``panned``): the same targets and clutter under a camera that moves 2, 4
+and 6 px/frame more, the regime of real panning clips none of whose settings were chosen.
 """
 
 from __future__ import annotations
@@ -161,24 +161,31 @@ def panned(frames, truth, speed: float, rng: np.random.Generator, attempts: int 
     return None
 
 
+def pan_clips(data: dict, seed: int = 0):
+    """(name, speed, ``panned``'s result or None) for every sequence of ``data`` (name ->
+    (frames, truth), in order) and every speed of PAN_SPEEDS: section 5's clips, the same
+    for every script that asks with the same sequences and seed (bench_tracking)."""
+    rng = np.random.default_rng(seed)
+    for name, (frames, truth) in data.items():
+        for speed in PAN_SPEEDS:
+            yield name, speed, panned(frames, truth, speed, rng)
+
+
 def run_panned(data: dict, cfg: ProcessConfig, seed: int = 0) -> list:
     """Section 5: (name, speed, None or (frames shape, (vx, vy), irdetect's row))."""
-    rng = np.random.default_rng(seed)
     rows = []
-    for name, (frames, truth) in data.items():
+    for name, speed, got in pan_clips(data, seed):
+        if got is None:
+            rows.append((name, speed, None))
+            continue
+        clip, moved, v, _ = got
         gate = gate_of(name)
-        for speed in PAN_SPEEDS:
-            got = panned(frames, truth, speed, rng)
-            if got is None:
-                rows.append((name, speed, None))
-                continue
-            clip, moved, v, _ = got
-            r = run_irdetect(clip, moved, gate, cfg)
-            r["peak"] = tophat_peak(clip, moved, gate)
-            rows.append((name, speed, (clip.shape, v, r)))
-            print(f"{name} + pan {speed:g}: {r['win_detected']}/{r['win_targets']} windows, "
-                  f"{r['win_false']:.2f} false/window, tracks {r['tracks_right']} / "
-                  f"{r['tracks_false']}", flush=True)
+        r = run_irdetect(clip, moved, gate, cfg)
+        r["peak"] = tophat_peak(clip, moved, gate)
+        rows.append((name, speed, (clip.shape, v, r)))
+        print(f"{name} + pan {speed:g}: {r['win_detected']}/{r['win_targets']} windows, "
+              f"{r['win_false']:.2f} false/window, tracks {r['tracks_right']} / "
+              f"{r['tracks_false']}", flush=True)
     return rows
 
 
@@ -774,7 +781,7 @@ def write_report(path: Path, rows, have_trackpy: bool, total: float, variants=()
     if pans:
         done = [(n, sp, got) for n, sp, got in pans if got is not None]
         ok = sum(goal_met(got[2]) for _, _, got in done)
-        held = sum(got[2]["win_pd"] >= 0.9 for _, _, got in done)
+        found = sum(got[2]["win_pd"] >= 0.9 for _, _, got in done)
         lines += [
             "",
             "## 5. Under an added pan",
@@ -805,7 +812,7 @@ def write_report(path: Path, rows, have_trackpy: bool, total: float, variants=()
                 f"{fmt(r['peak'])} | {fmt(r['win_false'])} | "
                 f"{r['tracks_right']} / {r['tracks_false']} | "
                 f"{'yes' if goal_met(r) else 'no'} |")
-        lines += ["", f"Goal met on {ok} of {len(done)} clips; Pd >= 0.9 on {held} of "
+        lines += ["", f"Goal met on {ok} of {len(done)} clips; Pd >= 0.9 on {found} of "
                   f"{len(done)}; {len(pans) - len(done)} of {len(pans)} had no placement."]
     lines += ["", f"Whole benchmark: {total:.0f} s.", ""]
     path.parent.mkdir(parents=True, exist_ok=True)
