@@ -377,8 +377,8 @@ class Pending:
         if self.false_rate > 0:
             det["level"] = map_threshold(integrated[0], self.false_rate, frames)
         if scene is not None and scene.any():       # band 2 ran: the camera moved
-            t = np.arange(len(self.matched))
-            ref = [np.interp((len(t) - 1) / 2.0, t, self.camera[:len(t), i]) for i in (0, 1)]
+            n = len(self.matched)                   # the map in the image of the middle
+            ref = 0.5 * (self.camera[(n - 1) // 2] + self.camera[n // 2])
             moved = integrated_map(registered_mean([(p.matched, p.camera[:len(p.matched)])
                                                     for p in blocks], ref))
             det["significance"][scene] = significance(moved, along[scene], det["x"][scene],
