@@ -400,13 +400,13 @@ class Pending:
         if len(rows) < 2:
             return
         pairs = cKDTree(self.pos[rows]).query_pairs(self.tolerance, output_type="ndarray")
+        other = self.table["band"] != 2
+
+        def rank(r):
+            return other[r], self.seg_score[r]
+
         for a, b in pairs:          # a loop over duplicate pairs (rare)
             ra, rb = rows[a], rows[b]
             if not (self.table["confirmed"][ra] and self.table["confirmed"][rb]):
                 continue
-            band = self.table["band"]
-            if (band[ra] == 2) != (band[rb] == 2):
-                lose = ra if band[ra] == 2 else rb
-            else:
-                lose = rb if self.seg_score[ra] >= self.seg_score[rb] else ra
-            self.table["confirmed"][lose] = False
+            self.table["confirmed"][rb if rank(ra) >= rank(rb) else ra] = False
