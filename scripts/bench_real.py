@@ -485,6 +485,9 @@ CHOSEN = (
      "irdetect.verify:RING_MAX", (3.0, 8.0), 8.0),
     ("auto: registered below this sigma ratio (suppress.WIDER)", "constant",
      "irdetect.suppress:WIDER", (0.8, 0.9), 0.9),
+    ("auto: bright residue counted on the window's mean residual "
+     "(suppress.RESIDUE_ON_MEAN; chosen on section 6's clips)", "constant",
+     "irdetect.suppress:RESIDUE_ON_MEAN", (False, True), True),
     ("fast band's threshold (fast.k)", "config", "fast.k", (3.0, 3.5, 4.0), 3.5),
     ("per-frame CFAR, false peaks per frame (frame.false_rate)", "config",
      "frame.false_rate", (0.3, 1.0, 3.0), 1.0),
