@@ -276,11 +276,12 @@ def residue(residual, k: float = 4.0, on_mean: bool | None = None) -> tuple[floa
     grows.
 
     Measured (share per mille, registered / temporal, the windows whose camera offsets
-    move; a scratch measurement of 2026-12-06), on the frames and on the mean: the DAUB folders 0.0-9.6 / 11-46
-    and 0.0-2.9 / 11-53; the istd640 folders 0.0-81 / 1.0-159 and 0.0-27 / 1.5-142; the
-    simulator's still ground under clouds drifting 0.1 px/frame (the ``clutter`` preset,
-    3 seeds; sigmas alike) 0.0-0.2 / 0.0-0.1 and 0.0-0.1 / 0.0-0.3; istd640-seq1-101
-    with white noise of 1 grey level added 0.0-0.1 / 0.3-0.5 and 0.0-0.1 / 0.8-2.4.
+    move; a scratch measurement of 2026-12-06), on the frames and on the mean: the DAUB
+    folders 0.0-9.6 / 11-46 and 0.0-2.9 / 11-53; the istd640 folders 0.0-81 / 1.0-159
+    and 0.0-27 / 1.5-142; the simulator's still ground under clouds drifting 0.1
+    px/frame (the ``clutter`` preset, 3 seeds; sigmas alike) 0.0-0.2 / 0.0-0.1 and
+    0.0-0.1 / 0.0-0.3; istd640-seq1-101 with white noise of 1 grey level added 0.0-0.1 /
+    0.3-0.5 and 0.0-0.1 / 0.8-2.4.
     """
     r = np.asarray(residual)
     v = r[::3, ::4, ::4].ravel()

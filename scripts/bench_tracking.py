@@ -349,6 +349,11 @@ def _crop(truth, shape):
     return max(strips, key=lambda s: (s[1] - s[0]) * (s[3] - s[2])) if strips else None
 
 
+def _gate(name: str) -> float:
+    """The scoring gate (px) of a real folder: 5 for the easy clips, 3 for the others."""
+    return 5.0 if name.startswith("easy") else 3.0
+
+
 def _real():
     """Rows of the real folders, the leave-one-out table and the clutter-only crops."""
     rows, grid, crops, data = [], {}, [], {}
@@ -357,7 +362,7 @@ def _real():
         src = open_sequence(folder / "frames")
         truth = read_point_annotations(folder / "truth.txt", len(src))
         data[folder.name] = (np.asarray(src[:]), truth)
-        gate = 5.0 if folder.name.startswith("easy") else 3.0
+        gate = _gate(folder.name)
         label = f"{folder.name} ({len(src)} frames, gate {gate:g} px)"
         for name, params in REAL_METHODS:
             r = _run(src, truth, gate, **params)
@@ -400,7 +405,7 @@ def _real():
         if got is None:
             continue
         clip, moved, (vx, vy), _ = got
-        r = _run(clip, moved, 5.0 if name.startswith("easy") else 3.0)
+        r = _run(clip, moved, _gate(name))
         pan_n += 1
         pan_goal += _at_goal(r)
         pan_rows.append(f"| {name} | {speed:g} | ({vx:.1f}, {vy:.1f}) | {len(clip)} | "
@@ -411,7 +416,7 @@ def _real():
     for name, (frames, truth) in data.items():
         cells = []
         for v in NOISE_LEVELS:
-            r = _run(noisy(frames, v), truth, 5.0 if name.startswith("easy") else 3.0)
+            r = _run(noisy(frames, v), truth, _gate(name))
             noise_goal[v] += _at_goal(r)
             cells.append(f"{r['mota']:.3f} / {r['idf1']:.3f} / {r['n_tracks_out']} / "
                          f"{'yes' if _at_goal(r) else 'no'}")
