@@ -34,6 +34,7 @@ Data Bank, 2019, DOI 10.11922/sciencedb.902.
 
 Usage: .venv/bin/python scripts/bench_real.py [--out docs/results/real.md] [--only NAME]
        [--config CONFIG.toml] [--no-variants] [--no-loo] [--no-pan] [--no-noise]
+       [--no-transforms]
        [--picture NAME:FRAME[:X:Y]] [--pair NAME:FRAME]
 
 Section 3 (variants) reruns irdetect on every sequence with one option changed at a
@@ -46,6 +47,9 @@ over its frames (``panned``): the same targets and clutter under a camera that m
 and 6 px/frame more, the regime of real panning clips none of whose settings were chosen.
 Section 6 (added noise) runs the defaults on each sequence with white noise added
 (``noisy``): the same scenes from a noisier sensor.
+Section 7 (transformed) runs the defaults on each sequence mirrored, reversed in time, at
+half the frame rate and at half the size (``transformed``): recordings of the same scenes
+that no setting was chosen on.
 """
 
 from __future__ import annotations
@@ -216,6 +220,50 @@ def run_noisy(data: dict, cfg: ProcessConfig, seed: int = 0) -> list:
             r["peak"] = tophat_peak(clip, truth, gate)
             rows.append((name, sigma, r))
             print(f"{name} + noise {sigma:g}: {r['win_detected']}/{r['win_targets']} windows, "
+                  f"{r['win_false']:.2f} false/window, tracks {r['tracks_right']} / "
+                  f"{r['tracks_false']}", flush=True)
+    return rows
+
+
+#: section 7: each sequence as another recording of it would give it (``transformed``)
+TRANSFORMS = ("mirrored", "reversed", "every 2nd frame", "half size")
+
+
+def transformed(frames, truth, kind: str, gate: float):
+    """(frames, truth, gate) of the sequence as ``kind`` of TRANSFORMS gives it:
+    ``mirrored`` left to right; ``reversed`` in time (the targets and the camera move the
+    other way); ``every 2nd frame`` (a sensor at half the frame rate: twice the speeds in
+    px/frame); ``half size`` (each side halved by area averaging, ``cv2.INTER_AREA``: a
+    sensor of half the resolution, the targets smaller and dimmer against their pixel;
+    the gate halved, not below 3 px). x = column, y = row."""
+    n, h, w = frames.shape
+    t = truth.copy()
+    if kind == "mirrored":
+        t["x"] = w - 1 - t["x"]
+        return frames[:, :, ::-1], t, gate
+    if kind in ("reversed", "every 2nd frame"):
+        t = t[::-1] if kind == "reversed" else t[::2]
+        t["frame"] = np.arange(len(t))
+        return (frames[::-1] if kind == "reversed" else frames[::2]), t, gate
+    if kind == "half size":
+        small = np.stack([cv2.resize(np.asarray(f, np.float32), (w // 2, h // 2),
+                                     interpolation=cv2.INTER_AREA) for f in frames])
+        t["x"], t["y"] = (t["x"] + 0.5) / 2 - 0.5, (t["y"] + 0.5) / 2 - 0.5
+        return small, t, max(3.0, gate / 2)
+    raise ValueError(f"unknown transform {kind!r}")
+
+
+def run_transformed(data: dict, cfg: ProcessConfig) -> list:
+    """Section 7: (name, kind, irdetect's row) for every sequence and TRANSFORMS."""
+    rows = []
+    for kind in TRANSFORMS:
+        for name, (frames, truth) in data.items():
+            clip, moved, gate = transformed(frames, truth, kind, gate_of(name))
+            clip = np.ascontiguousarray(clip)
+            r = run_irdetect(clip, moved, gate, cfg)
+            r["peak"] = tophat_peak(clip, moved, gate)
+            rows.append((name, kind, r))
+            print(f"{name} {kind}: {r['win_detected']}/{r['win_targets']} windows, "
                   f"{r['win_false']:.2f} false/window, tracks {r['tracks_right']} / "
                   f"{r['tracks_false']}", flush=True)
     return rows
@@ -628,6 +676,9 @@ def main(argv=None) -> int:
                     help="skip section 5 (the sequences under an added pan)")
     ap.add_argument("--no-noise", action="store_true",
                     help="skip section 6 (the sequences with added noise)")
+    ap.add_argument("--no-transforms", action="store_true",
+                    help="skip section 7 (the sequences mirrored, reversed, at half the "
+                    "frame rate and at half the size)")
     args = ap.parse_args(argv)
     if not REAL.is_dir():
         print(f"real data not found at {REAL} (../shared/data/real beside the repo)")
@@ -677,9 +728,10 @@ def main(argv=None) -> int:
     loo = run_leave_one_out(every, cfg) if every and not args.no_loo else []
     pans = run_panned(every, cfg) if every and not args.no_pan else []
     noise = run_noisy(every, cfg) if every and not args.no_noise else []
+    transforms = run_transformed(every, cfg) if every and not args.no_transforms else []
     total = time.perf_counter() - t_all
     write_report(Path(args.out), rows, trackpy is not None, total, variants,
-                 args.config, loo, load_avg, pans, noise)
+                 args.config, loo, load_avg, pans, noise, transforms)
     print(f"wrote {args.out}")
     write_roc_figure(Path(args.out).with_name("real-roc.png"), rows)
     return 0
@@ -700,7 +752,7 @@ def write_roc_figure(path: Path, rows) -> None:
 
 def write_report(path: Path, rows, have_trackpy: bool, total: float, variants=(),
                  config_path=None, loo=(), load_avg: float = float("nan"), pans=(),
-                 noise=()) -> None:
+                 noise=(), transforms=()) -> None:
     today = datetime.date.today().isoformat()
     cores = os.cpu_count() or 1
     busy = ": other jobs were running, so frames/s are noisy" if load_avg > 0.5 * cores else ""
@@ -867,34 +919,58 @@ def write_report(path: Path, rows, have_trackpy: bool, total: float, variants=()
             "`suppress.RESIDUE_ON_MEAN` (section 4 holds it out on the sequences as "
             "recorded, docs/real.md on these). Goal as in section 1.",
             "",
-            "| sequence | " + " | ".join(
-                f"noise {v:g}: windows detected | top-hat peak | false / window | "
-                f"tracks right / false | goal" for v in NOISE_LEVELS) + " |",
-            "|---|" + "---|---|---|---|---|" * len(NOISE_LEVELS),
         ]
-        by = {(n, v): r for n, v, r in noise}
-        for name in dict.fromkeys(n for n, _, _ in noise):
-            cells = []
-            for v in NOISE_LEVELS:
-                r = by[(name, v)]
-                cells.append(f"{r['win_detected']}/{r['win_targets']} | {fmt(r['peak'])} | "
-                             f"{fmt(r['win_false'])} | {r['tracks_right']} / "
-                             f"{r['tracks_false']} | {'yes' if goal_met(r) else 'no'}")
-            lines.append(f"| {name} | " + " | ".join(cells) + " |")
-        lines.append("")
-        for v in NOISE_LEVELS:
-            rs = [r for _, vv, r in noise if vv == v]
-            lines.append(
-                f"Noise {v:g}: goal met on {sum(goal_met(r) for r in rs)} of {len(rs)}; "
-                f"Pd >= 0.9 on {sum(r['win_pd'] >= 0.9 for r in rs)}; below the top-hat "
-                f"peak minus 0.05 on {sum(r['win_pd'] < r['peak'] - 0.05 for r in rs)}; "
-                f"false detections per window {np.mean([r['win_false'] for r in rs]):.2f} "
-                "on average.")
+        lines += _by_column(noise, NOISE_LEVELS, lambda v: f"noise {v:g}")
+    if transforms:
+        lines += [
+            "",
+            "## 7. The sequences transformed",
+            "",
+            "Each sequence as another recording of it would give it (`transformed`): "
+            "mirrored left to right; reversed in time (targets and camera move the other "
+            "way); every second frame (a sensor at half the frame rate: twice the speeds "
+            "in px/frame, half the windows); half the size by area averaging (a sensor of "
+            "half the resolution: the targets smaller and dimmer against their pixel; gate "
+            "halved, not below 3 px). None of irdetect's settings was chosen on these "
+            "clips. Goal as in section 1.",
+            "",
+        ]
+        lines += _by_column(transforms, TRANSFORMS, str)
     lines += ["", f"Whole benchmark: {total:.0f} s.", ""]
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
     tmp.write_text("\n".join(lines))
     os.replace(tmp, path)
+
+
+def _by_column(rows, keys, label) -> list[str]:
+    """A table with one group of columns per key (sections 6 and 7): ``rows`` of (name,
+    key, irdetect's row), ``label(key)`` naming each group; then the totals per key."""
+    lines = [
+        "| sequence | " + " | ".join(
+            f"{label(v)}: windows detected | top-hat peak | false / window | "
+            f"tracks right / false | goal" for v in keys) + " |",
+        "|---|" + "---|---|---|---|---|" * len(keys),
+    ]
+    by = {(n, v): r for n, v, r in rows}
+    for name in dict.fromkeys(n for n, _, _ in rows):
+        cells = []
+        for v in keys:
+            r = by[(name, v)]
+            cells.append(f"{r['win_detected']}/{r['win_targets']} | {fmt(r['peak'])} | "
+                         f"{fmt(r['win_false'])} | {r['tracks_right']} / "
+                         f"{r['tracks_false']} | {'yes' if goal_met(r) else 'no'}")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    lines.append("")
+    for v in keys:
+        rs = [r for _, vv, r in rows if vv == v]
+        lines.append(
+            f"{label(v)[0].upper() + label(v)[1:]}: goal met on {sum(goal_met(r) for r in rs)} "
+            f"of {len(rs)}; Pd >= 0.9 on {sum(r['win_pd'] >= 0.9 for r in rs)}; below the "
+            f"top-hat peak minus 0.05 on {sum(r['win_pd'] < r['peak'] - 0.05 for r in rs)}; "
+            f"false detections per window {np.mean([r['win_false'] for r in rs]):.2f} on "
+            "average.")
+    return lines
 
 
 if __name__ == "__main__":
