@@ -363,3 +363,35 @@ def test_a_target_fading_below_the_frames_level_keeps_feeding_its_track(rng):
         assert len(tracks) == 1
         found[rate] = clear_mot(late, points[points["frame"] >= 30], gate=3.0)["matches"]
     assert found[0.01] >= 20 and found[0.0] <= 10
+
+
+def test_measuring_tentative_tracks_together_gives_each_its_own_figures():
+    # the tracker measures all its tentative tracks at once (padded to the longest):
+    # tracks of 1, 2, 3 and 25 hits, moving, still and with an outlier, measured
+    # together get the figures each gets alone, so the padding leaks nothing
+    rng = np.random.default_rng(3)
+
+    def tentative(n, vx, scatter, born):
+        k = np.arange(n, dtype=float) + born
+        meas = np.column_stack([k, 50 + vx * k + rng.normal(0, scatter, n),
+                                80 - 0.5 * vx * k + rng.normal(0, scatter, n), 0 * k, 0 * k,
+                                rng.uniform(3, 20, n)])
+        if n > 5:
+            meas[n // 2, 1] += 9.0                      # a noise peak taken in the gate
+        return SimpleNamespace(meas=list(map(tuple, meas)), born=born, clutter=int(n))
+
+    tracks = [tentative(n, v, s, b) for n, v, s, b in
+              [(1, 0.0, 0.3, 24), (2, 1.0, 0.3, 20), (3, 2.0, 0.2, 19), (25, 0.4, 0.5, 0),
+               (12, 0.0, 0.8, 10), (7, 3.0, 0.1, 14)]]
+    together = ClutterTest((240, 320), false_tracks=0.001, floor=1e-6, window=30)
+    together.measure_all(tracks, 24)
+    got = [(t.E, t.moved, t.still, t.speed, t.score) for t in tracks]
+    alone = ClutterTest((240, 320), false_tracks=0.001, floor=1e-6, window=30)
+    for t, g in zip(tracks, got):
+        alone.measure(t, 24)
+        assert (t.E, t.moved, t.still, t.speed, t.score) == pytest.approx(g, rel=1e-12)
+        meas = np.array(t.meas)
+        if len(meas) >= 3:
+            assert t.still == pytest.approx(still_chance(*meas[:, :3].T), rel=1e-12)
+        assert t.score == np.median(meas[:, 5])
+    assert got[0][:3] == (np.inf, 0.0, 1.0) and got[3][1] >= 1.0 and got[4][1] < 1.0

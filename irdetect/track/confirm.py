@@ -101,37 +101,81 @@ def still_chance(frame: np.ndarray, x: np.ndarray, y: np.ndarray) -> float:
         The chance in [0, 1]; 1 with fewer than 3 hits or all in one frame, 0 for hits
         exactly on a moving line.
     """
-    f, x, y = (np.asarray(a, np.float64) for a in (frame, x, y))
-    if len(f) < 3 or np.ptp(f) == 0:
-        return 1.0
-    _, _, ex, ey = _line(f, x, y)
+    f, x, y = (np.asarray(a, np.float64)[None, :] for a in (frame, x, y))
+    return float(_still_chances(f, x, y, np.ones(f.shape, bool))[0])
+
+
+def _still_chances(f, x, y, w) -> np.ndarray:
+    """``still_chance`` of N tracks at once: hits (N, K) padded, ``w`` marking the real
+    ones; shape (N,)."""
+    _, _, ex, ey = _lines(f, x, y, w)
     e = np.hypot(ex, ey)
-    keep = e <= 3.0 * np.median(e)
-    f, x, y = f[keep], x[keep], y[keep]
-    n = len(f)
-    if n < 3 or np.ptp(f) == 0:
-        return 1.0
-    vx, vy, ex, ey = _line(f, x, y)
-    S = float(((f - f.mean()) ** 2).sum())
-    s2 = float((ex * ex + ey * ey).sum()) / (2 * (n - 2))
-    motion = (vx * vx + vy * vy) * S / 2
-    if s2 <= 0:
-        return 0.0 if motion > 0 else 1.0
-    return float((1.0 + motion / s2 / (n - 2)) ** -(n - 2))
+    with np.errstate(all="ignore"):
+        keep = w & (e <= 3.0 * _median(e, w)[:, None])
+        vx, vy, ex, ey = _lines(f, x, y, keep)
+        n = keep.sum(axis=1)
+        t = np.where(keep, f - _mean(f, keep)[:, None], 0.0)
+        S = (t * t).sum(axis=1)
+        s2 = (ex * ex + ey * ey).sum(axis=1) / (2 * (n - 2))
+        motion = (vx * vx + vy * vy) * S / 2
+        chance = (1.0 + motion / s2 / (n - 2)) ** -(n - 2.0)
+    chance = np.where(s2 <= 0, np.where(motion > 0, 0.0, 1.0), chance)
+    few = (w.sum(axis=1) < 3) | (_span(f, w) == 0) | (n < 3) | (_span(f, keep) == 0)
+    return np.where(few, 1.0, chance)
 
 
-def _line(f, x, y):
-    """The least-squares constant-velocity fit x(t), y(t) of hits at frames ``f``:
-    velocity (vx, vy), px/frame (0 when all hits share one frame), and the residuals
-    ex, ey (px) of every hit."""
-    t = f - f.mean()
-    vt = float((t * t).sum())
+def _median(a, w) -> np.ndarray:
+    """Median over axis 1 of ``a`` (N, K) where ``w`` (``np.median`` of each row's real
+    values: the middle one, or the mean of the middle two); NaN for a row without any."""
+    n = w.sum(axis=1)
+    s = np.sort(np.where(w, a, np.inf), axis=1)
+    rows = np.arange(len(a))
+    lo = s[rows, np.maximum(n - 1, 0) // 2]
+    hi = s[rows, np.minimum(n // 2, a.shape[1] - 1)]
+    return np.where(n > 0, (lo + hi) / 2, np.nan)
+
+
+def _mean(a, w) -> np.ndarray:
+    """Mean over axis 1 of ``a`` (N, K) where ``w``; 0 for a row without any."""
+    return np.where(w, a, 0.0).sum(axis=1) / np.maximum(w.sum(axis=1), 1)
+
+
+def _span(f, w) -> np.ndarray:
+    """max - min over axis 1 of ``f`` (N, K) where ``w``; 0 for a row without any."""
+    if not f.size:
+        return np.zeros(len(f))
+    hi = np.where(w, f, -np.inf).max(axis=1)
+    lo = np.where(w, f, np.inf).min(axis=1)
+    return np.where(w.any(axis=1), hi - lo, 0.0)
+
+
+def _lines(f, x, y, w):
+    """The least-squares constant-velocity fits x(t), y(t) of N tracks' hits at frames
+    ``f`` (each (N, K), padded; ``w`` marks the real hits): velocities vx, vy of shape
+    (N,), px/frame (0 when all of a track's hits share one frame), and the residuals ex,
+    ey of shape (N, K), px (0 where padded)."""
+    t = np.where(w, f - _mean(f, w)[:, None], 0.0)
+    vt = (t * t).sum(axis=1)
 
     def slope(v):
-        return float((t * (v - v.mean())).sum() / vt) if vt > 0 else 0.0
+        d = np.where(w, v - _mean(v, w)[:, None], 0.0)
+        return np.where(vt > 0, (t * d).sum(axis=1) / np.where(vt > 0, vt, 1.0), 0.0)
 
     vx, vy = slope(x), slope(y)
-    return vx, vy, x - (x.mean() + vx * t), y - (y.mean() + vy * t)
+    ex = np.where(w, x - (_mean(x, w)[:, None] + vx[:, None] * t), 0.0)
+    ey = np.where(w, y - (_mean(y, w)[:, None] + vy[:, None] * t), 0.0)
+    return vx, vy, ex, ey
+
+
+def _padded(meas_lists) -> tuple[np.ndarray, np.ndarray]:
+    """N tracks' hit rows (each a list or array of rows of equal length) as one array of
+    shape (N, K, columns), K the most hits, and the mask (N, K) of the real rows."""
+    counts = np.array([len(m) for m in meas_lists])
+    rows = np.array([r for m in meas_lists for r in m], np.float64)
+    w = np.arange(max(int(counts.max()), 1))[None, :] < counts[:, None]
+    out = np.zeros(w.shape + rows.shape[1:])
+    out[w] = rows
+    return out, w
 
 
 class ClutterTest:
@@ -222,40 +266,55 @@ class ClutterTest:
             Displacement of the least-squares constant-velocity fit against the scene from
             the first to the last hit, in units of 3 sqrt(2) sigma (>= 1 passes test 1).
         """
-        meas = np.asarray(meas, np.float64)
-        f = meas[:, 0]
-        vx, vy, ex, ey = _line(f, meas[:, 1], meas[:, 2])
-        e = np.hypot(ex, ey) / self.sigma
-        span = float(f.max() - f.min())
+        hits, w = _padded([np.asarray(meas, np.float64)])
+        E, moved, _ = self._expectations(hits, w, np.array([age]), np.array([clutter]))
+        return float(E[0]), float(moved[0])
+
+    def _expectations(self, hits, w, age, clutter):
+        """``expectation`` of N tracks at once: hits (N, K, columns) padded, ``w`` (N, K)
+        marking the real ones, ``age`` and ``clutter`` of shape (N,); E, moved and the
+        fit's speed (px/frame), each of shape (N,)."""
+        f, x, y = hits[..., 0], hits[..., 1], hits[..., 2]
+        vx, vy, ex, ey = _lines(f, x, y, w)
+        e = np.where(w, np.hypot(ex, ey) / self.sigma, np.inf)
+        span = _span(f, w)
         unit = GATE * math.sqrt(2.0) * self.sigma
-        moved = math.hypot(vx, vy) * span / unit
-        M = max(int(age), len(meas))
-        hits = (e[:, None] <= GATE * np.asarray(LEVELS)[None, :]).sum(axis=0)[None, :]
+        speed = np.hypot(vx, vy)
+        moved = speed * span / unit
+        M = np.maximum(np.asarray(age, np.int64), w.sum(axis=1))
+        counted = (e[:, :, None] <= GATE * np.asarray(LEVELS)[None, None, :]).sum(axis=1)
         disc = math.pi * self.radius ** 2
-        density = max(clutter / (max(M, 1) * disc), self.floor,
-                      self.regions_seen / (max(self.frames_seen, 1) * self.area))
-        s = np.array([self.sigma])
-        H = hypotheses(self.area, float(M - 1), self.max_speed, GATE, s, s)
-        E = float(chain_expectation(hits, M, density, s, s, H, GATE)[0])
-        return E, moved
+        density = np.maximum.reduce([
+            np.asarray(clutter) / (np.maximum(M, 1) * disc), np.full(len(M), self.floor),
+            np.full(len(M), self.regions_seen / (max(self.frames_seen, 1) * self.area))])
+        s = np.full(len(M), self.sigma)
+        H = hypotheses(self.area, (M - 1).astype(np.float64), self.max_speed, GATE, s, s)
+        E = chain_expectation(counted, M[:, None], density[:, None], s, s, H, GATE)
+        return E, moved, np.where(span > 0, speed, 0.0)
 
     def measure(self, track, frame: int) -> None:
         """Set a tentative track's ``E``, ``moved``, ``still`` (its ``still_chance``),
         ``speed`` (its fit's, px/frame against the scene) and ``score`` (the median
         contrast of its hits: the peaks' local SNR) at ``frame``
         (``irdetect.track.tracker.Track``: its ``meas``, ``born`` and ``clutter``)."""
-        track.speed = 0.0
-        if len(track.meas) < 2:
-            track.E, track.moved, track.still = math.inf, 0.0, 1.0
-        else:
-            meas = np.array(track.meas)
-            track.E, track.moved = self.expectation(meas, frame - track.born + 1,
-                                                    track.clutter)
-            track.still = still_chance(meas[:, 0], meas[:, 1], meas[:, 2])
-            span = float(np.ptp(meas[:, 0]))
-            if span > 0:                 # ``moved`` is in units of 3 sqrt(2) sigma px
-                track.speed = track.moved * GATE * math.sqrt(2.0) * self.sigma / span
-        track.score = float(np.median([m[5] for m in track.meas]))
+        self.measure_all([track], frame)
+
+    def measure_all(self, tracks, frame: int) -> None:
+        """``measure`` every track of ``tracks`` (a list) at ``frame``, in one pass."""
+        if not tracks:
+            return
+        hits, w = _padded([t.meas for t in tracks])
+        age = np.array([frame - t.born + 1 for t in tracks])
+        clutter = np.array([t.clutter for t in tracks])
+        E, moved, speed = self._expectations(hits, w, age, clutter)
+        still = _still_chances(hits[..., 0], hits[..., 1], hits[..., 2], w)
+        score = _median(hits[..., 5], w)
+        one = w.sum(axis=1) < 2
+        for i, t in enumerate(tracks):   # the results back on the track objects
+            t.E, t.moved, t.still = ((math.inf, 0.0, 1.0) if one[i] else
+                                     (float(E[i]), float(moved[i]), float(still[i])))
+            t.speed = 0.0 if one[i] else float(speed[i])
+            t.score = float(score[i])
 
     def sample(self, tracks, n_frames: int, min_hits: int) -> np.ndarray | None:
         """The clutter sample of test 3 at this frame (module notes).

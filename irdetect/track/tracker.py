@@ -267,9 +267,8 @@ class _TrackerBase:
         sample = None
         if test is not None:
             # the tentative tracks' statistics, then this frame's clutter sample
-            for t in self.tracks:
-                if not t.confirmed and not t.dead:
-                    test.measure(t, frame)
+            test.measure_all([t for t in self.tracks if not t.confirmed and not t.dead],
+                             frame)
             sample = test.sample(self.tracks, frame + 1, self.confirm_hits)
         for t in self.tracks:
             age = frame - t.born + 1
