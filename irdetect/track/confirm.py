@@ -19,7 +19,14 @@ A tentative track (``irdetect.track.tracker``) is confirmed only when
    structure can drift the 3 sqrt(2) sigma of the first test (istd640-seq1-243's
    clutter-only crop: 4.6 px in 8 hits scattered 1.4 px about their line, chance 0.005),
    a target's hits lie on their line (the real folders' targets, a scratch measurement:
-   chance < 1e-10 at confirmation);
+   chance < 1e-10 at confirmation). A track whose motion is significant and which
+   passes test 2 when its tentative life of ``window`` frames is over, but not yet the
+   displacement (a target slower than 3 sqrt(2) sigma per ``window`` frames) or test
+   3's level, is not ended but tested on, with its hits, up to
+   ``irdetect.track.tracker.SLOW_LIFE`` windows (``unfinished``): ended, it would start
+   again from nothing, and a slow one would never move far enough (reversed easy1's
+   target had moved 0.99 of the displacement at frame 30, with a still chance of
+   1.7e-26);
 2. clutter of the density measured around it would make at most ``false_tracks`` tracks
    per frame as good anywhere in the frame: the scans clutter test of
    ``irdetect.initiate.clutter`` (``chain_expectation``), E = H J min_j B(n_j; M, p(g_j))
@@ -364,6 +371,14 @@ class ClutterTest:
         """Tests 1 and 2 (module notes) of a measured tentative track."""
         return (track.moved >= 1.0 and track.still <= self.still_level
                 and track.E <= self.rate)
+
+    def unfinished(self, track) -> bool:
+        """Whether a measured tentative track is still unlike clutter when its tentative
+        life is over: its chain passes test 2 and its motion is significant against its
+        own scatter, and what it lacks is test 1's displacement or test 3's level (module
+        notes: it is tested on, with its hits, rather than started again from
+        nothing)."""
+        return track.still <= self.still_level and track.E <= self.rate
 
     def ended(self, track, min_hits: int) -> None:
         """A tentative track that ends unconfirmed joins the clutter sample (score and
