@@ -211,15 +211,25 @@ def noisy(frames, sigma: float, seed: int = 0) -> np.ndarray:
 
 def run_noisy(data: dict, cfg: ProcessConfig, seed: int = 0) -> list:
     """Section 6: (name, sigma, irdetect's row) for every sequence and NOISE_LEVELS."""
+    return run_clips(data, cfg, NOISE_LEVELS,
+                     lambda name, f, t, v: (noisy(f, v, seed), t, gate_of(name)),
+                     lambda v: f"+ noise {v:g}")
+
+
+def run_clips(data: dict, cfg: ProcessConfig, keys, clip_of, label) -> list:
+    """(name, key, irdetect's row) for every sequence of ``data`` (name -> (frames,
+    truth)) and every key of ``keys``: the run on ``clip_of(name, frames, truth, key)`` ->
+    (frames, truth, gate), with the top-hat peak's hit rate (sections 6 and 7;
+    ``label(key)`` names the clip in the progress lines)."""
     rows = []
-    for sigma in NOISE_LEVELS:
+    for key in keys:
         for name, (frames, truth) in data.items():
-            clip = noisy(frames, sigma, seed)
-            gate = gate_of(name)
-            r = run_irdetect(clip, truth, gate, cfg)
-            r["peak"] = tophat_peak(clip, truth, gate)
-            rows.append((name, sigma, r))
-            print(f"{name} + noise {sigma:g}: {r['win_detected']}/{r['win_targets']} windows, "
+            clip, moved, gate = clip_of(name, frames, truth, key)
+            clip = np.ascontiguousarray(clip)
+            r = run_irdetect(clip, moved, gate, cfg)
+            r["peak"] = tophat_peak(clip, moved, gate)
+            rows.append((name, key, r))
+            print(f"{name} {label(key)}: {r['win_detected']}/{r['win_targets']} windows, "
                   f"{r['win_false']:.2f} false/window, tracks {r['tracks_right']} / "
                   f"{r['tracks_false']}", flush=True)
     return rows
@@ -255,18 +265,8 @@ def transformed(frames, truth, kind: str, gate: float):
 
 def run_transformed(data: dict, cfg: ProcessConfig) -> list:
     """Section 7: (name, kind, irdetect's row) for every sequence and TRANSFORMS."""
-    rows = []
-    for kind in TRANSFORMS:
-        for name, (frames, truth) in data.items():
-            clip, moved, gate = transformed(frames, truth, kind, gate_of(name))
-            clip = np.ascontiguousarray(clip)
-            r = run_irdetect(clip, moved, gate, cfg)
-            r["peak"] = tophat_peak(clip, moved, gate)
-            rows.append((name, kind, r))
-            print(f"{name} {kind}: {r['win_detected']}/{r['win_targets']} windows, "
-                  f"{r['win_false']:.2f} false/window, tracks {r['tracks_right']} / "
-                  f"{r['tracks_false']}", flush=True)
-    return rows
+    return run_clips(data, cfg, TRANSFORMS,
+                     lambda name, f, t, k: transformed(f, t, k, gate_of(name)), str)
 
 
 def gate_of(name: str) -> float:
