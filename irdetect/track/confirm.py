@@ -23,7 +23,7 @@ A tentative track (``irdetect.track.tracker``) is confirmed only when
    passes test 2 when its tentative life of ``window`` frames is over, but not yet the
    displacement (a target slower than 3 sqrt(2) sigma per ``window`` frames) or test
    3's level, is not ended but tested on, with its hits, up to
-   ``irdetect.track.tracker.SLOW_LIFE`` windows (``unfinished``): ended, it would start
+   ``irdetect.track.tracker.SLOW_LIFE`` windows (``significant``): ended, it would start
    again from nothing, and a slow one would never move far enough (reversed easy1's
    target had moved 0.99 of the displacement at frame 30, with a still chance of
    1.7e-26);
@@ -369,15 +369,13 @@ class ClutterTest:
 
     def _moves_unlike_clutter(self, track) -> bool:
         """Tests 1 and 2 (module notes) of a measured tentative track."""
-        return (track.moved >= 1.0 and track.still <= self.still_level
-                and track.E <= self.rate)
+        return track.moved >= 1.0 and self.significant(track)
 
-    def unfinished(self, track) -> bool:
-        """Whether a measured tentative track is still unlike clutter when its tentative
-        life is over: its chain passes test 2 and its motion is significant against its
-        own scatter, and what it lacks is test 1's displacement or test 3's level (module
-        notes: it is tested on, with its hits, rather than started again from
-        nothing)."""
+    def significant(self, track) -> bool:
+        """Whether a measured tentative track's chain passes test 2 and its motion is
+        significant against its own scatter (test 1 without the displacement). A track
+        that is so when its tentative life is over, but lacks the displacement or test
+        3's level, is tested on (module notes)."""
         return track.still <= self.still_level and track.E <= self.rate
 
     def ended(self, track, min_hits: int) -> None:

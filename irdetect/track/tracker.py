@@ -34,7 +34,7 @@ from irdetect.track.fcm import fcm_memberships
 _H = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])
 
 
-#: a tentative track that ``ClutterTest.unfinished`` finds still unlike clutter lives up
+#: a tentative track that ``ClutterTest.significant`` finds still unlike clutter lives up
 #: to this many ``confirm_window``s before it ends unconfirmed (``irdetect.track.confirm``)
 SLOW_LIFE = 2
 
@@ -291,7 +291,7 @@ class _TrackerBase:
                         self._release(t, out)
                 elif (age >= self.confirm_window and not (
                         test is not None and age < SLOW_LIFE * self.confirm_window
-                        and test.unfinished(t))) or (
+                        and test.significant(t))) or (
                         t.misses > self.confirm_window - self.confirm_hits if test is None
                         else t.misses > test.misses):
                     if test is not None:
