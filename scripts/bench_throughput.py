@@ -13,7 +13,9 @@ For each frame size (256x256, 320x240, 640x512; uint16, simulated into a tempora
 3. per-stage seconds (``process_file(timings=...)`` in a child process), with 1 and 2
    worker threads, for the default configuration, for ``suppress.method =
    "temporal"`` (the static-camera path) and for the ``fast`` profile;
-4. trackpy ``locate`` frames/s on the same frames (the peer a user would reach for;
+4. ``irdetect track`` (the frame-by-frame tracker, defaults) end to end as a child
+   process on the same sequences: wall, in-run seconds, CPU time, peak RSS;
+5. trackpy ``locate`` frames/s on the same frames (the peer a user would reach for;
    skipped with a note when trackpy is not installed: it is not a dependency).
 
 Those inputs have a flat background, on which ``auto`` takes the still-camera background. Real
@@ -184,9 +186,10 @@ def _child(cmd: list[str]) -> tuple[str, str, dict]:
 
 
 def run_cli(path: Path, out: Path, config: Path | None = None,
-            options: list[str] | None = None) -> dict:
-    """``irdetect process`` as a user runs it: wall (with start-up), in-run seconds, RSS."""
-    cmd = [sys.executable, "-c", CLI, "process", str(path), "-o", str(out), "--force"]
+            options: list[str] | None = None, command: str = "process") -> dict:
+    """``irdetect process`` (or ``command``) as a user runs it: wall (with start-up),
+    in-run seconds, RSS."""
+    cmd = [sys.executable, "-c", CLI, command, str(path), "-o", str(out), "--force"]
     if config is not None:
         cmd += ["--config", str(config)]
     _, stderr, usage = _child(cmd + list(options or []))
@@ -311,7 +314,7 @@ def measure(args) -> dict:
         tmp = Path(tmp)
         temporal = tmp / "temporal.toml"
         temporal.write_text(TEMPORAL)
-        rows, stage_rows, peer_rows = [], [], []
+        rows, stage_rows, peer_rows, track_rows = [], [], [], []
         for h, w in SIZES:
             name = f"{w}x{h}"
             seq = tmp / f"seq_{name}.h5"
@@ -332,6 +335,9 @@ def measure(args) -> dict:
                 print(f"{name} {label} workers={workers}: {fps(args.frames, st['wall'])} "
                       f"fps", flush=True)
             rows.append((name, floor, cli))
+            track_rows.append((name, run_cli(seq, tmp / "tracks.h5", command="track")))
+            print(f"{name}: irdetect track {fps(args.frames, track_rows[-1][1]['wall'])} "
+                  f"fps, {track_rows[-1][1]['rss_mb']:.0f} MB", flush=True)
             peer_rows.append((name, trackpy_rate(seq, args.trackpy_frames), cli))
             seq.unlink()
         long_rows = []
@@ -354,7 +360,8 @@ def measure(args) -> dict:
             "machine": platform.processor() or platform.machine(),
             "versions": [platform.python_version(), np.__version__, _cv2_version()],
             "rows": rows, "stage_rows": stage_rows, "peer_rows": peer_rows,
-            "long_rows": long_rows, "starts": starts, "footage": footage_rows}
+            "long_rows": long_rows, "starts": starts, "footage": footage_rows,
+            "track_rows": track_rows}
 
 
 def footage(tmp: Path, n_frames: int) -> list:
@@ -476,6 +483,23 @@ def report(data: dict, figure: str | None = None) -> str:
         "commands) is the difference between the wall and in-run columns. The fps per "
         "CPU-second of a 2-thread run counts both threads' CPU time.",
         "",
+    ]
+    if data.get("track_rows"):
+        lines += [
+            "## End to end: `irdetect track` from HDF5",
+            "",
+            "The frame-by-frame tracker with its defaults (the per-frame detector's regions, "
+            "FCM + adaptive PMHT; `track` has no `--threads`) on the same sequences. The in-run "
+            "seconds include importing `irdetect.track`.",
+            "",
+            "| frames | fps, wall incl. start-up | fps in the run (excl. start-up) | fps per "
+            "CPU-second (whole process) | peak RSS MB |",
+            "|---|---|---|---|---|",
+        ]
+        lines += [f"| {name} | {fps(n, r['wall'])} | {fps(n, r['run'])} | "
+                  f"{fps(n, r['cpu'])} | {r['rss_mb']:.0f} |" for name, r in data["track_rows"]]
+        lines.append("")
+    lines += [
         "## Per stage (seconds in the stage, summed over threads; `process_file` in a child "
         "process)",
         "",
