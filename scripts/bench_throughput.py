@@ -27,7 +27,8 @@ only these and saves them (``--json``); ``--before-footage JSON`` adds such a ru
 checkout beside this one's.
 
 Then streaming memory: peak RSS of ``irdetect process`` (temporal suppressor, and the fast
-profile) on 20,000 frames of 256x256 (``--long``) against the 1,200-frame run; and the
+profile) and of ``irdetect track`` on 20,000 frames of 256x256 (``--long``) against the
+1,200-frame run; and the
 compiled kernels' cold start (``irdetect process`` on 48 frames with an empty numba cache:
 the kernels compile) and warm start (the same again: they load from the cache).
 
@@ -340,7 +341,7 @@ def measure(args) -> dict:
                   f"fps, {track_rows[-1][1]['rss_mb']:.0f} MB", flush=True)
             peer_rows.append((name, trackpy_rate(seq, args.trackpy_frames), cli))
             seq.unlink()
-        long_rows = []
+        long_rows, long_track = [], []
         if args.long:
             for n in sorted({args.frames, args.long}):
                 seq = tmp / f"long_{n}.h5"
@@ -349,8 +350,11 @@ def measure(args) -> dict:
                 r_fast = run_cli(seq, tmp / "out.h5", options=["--profile", "fast"])
                 r_auto = run_cli(seq, tmp / "out.h5") if n == args.frames else None
                 long_rows.append((n, r, r_auto, r_fast))
+                long_track.append((n, run_cli(seq, tmp / "tracks.h5", command="track")))
                 print(f"long {n}: simulated in {gen:.0f} s, rss {r['rss_mb']:.0f} MB "
-                      f"(fast {r_fast['rss_mb']:.0f} MB), {fps(n, r['wall'])} fps", flush=True)
+                      f"(fast {r_fast['rss_mb']:.0f} MB, track "
+                      f"{long_track[-1][1]['rss_mb']:.0f} MB), {fps(n, r['wall'])} fps",
+                      flush=True)
                 seq.unlink()
         starts = start_times(tmp)
         footage_rows = footage(tmp, args.footage_frames)
@@ -361,7 +365,7 @@ def measure(args) -> dict:
             "versions": [platform.python_version(), np.__version__, _cv2_version()],
             "rows": rows, "stage_rows": stage_rows, "peer_rows": peer_rows,
             "long_rows": long_rows, "starts": starts, "footage": footage_rows,
-            "track_rows": track_rows}
+            "track_rows": track_rows, "long_track": long_track}
 
 
 def footage(tmp: Path, n_frames: int) -> list:
@@ -547,13 +551,19 @@ def report(data: dict, figure: str | None = None) -> str:
             "## Streaming memory: peak RSS against sequence length (256x256)",
             "",
             "| frames | `irdetect process` (temporal) peak RSS MB | fps in the run | default "
-            "peak RSS MB | `--profile fast` peak RSS MB | fast fps in the run |",
-            "|---|---|---|---|---|---|",
+            "peak RSS MB | `--profile fast` peak RSS MB | fast fps in the run | "
+            "`irdetect track` peak RSS MB | track fps in the run |",
+            "|---|---|---|---|---|---|---|---|",
         ]
+        tracked = dict(data.get("long_track", []))
         for frames, r, r_auto, r_fast in long_rows:
             auto = "-" if r_auto is None else f"{r_auto['rss_mb']:.0f}"
+            trk = tracked.get(frames)
+            trk = ("- | -" if trk is None else
+                   f"{trk['rss_mb']:.0f} | {fps(frames, trk['run'])}")
             lines.append(f"| {frames:,} | {r['rss_mb']:.0f} | {fps(frames, r['run'])} | "
-                         f"{auto} | {r_fast['rss_mb']:.0f} | {fps(frames, r_fast['run'])} |")
+                         f"{auto} | {r_fast['rss_mb']:.0f} | {fps(frames, r_fast['run'])} | "
+                         f"{trk} |")
     lines += ["", "## Where the time goes (1 worker)", ""]
     for name, label, workers, st in stage_rows:
         if label in ("default (auto)", "fast") and workers == 1:
