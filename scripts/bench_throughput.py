@@ -28,9 +28,9 @@ checkout beside this one's.
 
 Then streaming memory: peak RSS of ``irdetect process`` (temporal suppressor, and the fast
 profile) and of ``irdetect track`` on 20,000 frames of 256x256 (``--long``) against the
-1,200-frame run; and the
-compiled kernels' cold start (``irdetect process`` on 48 frames with an empty numba cache:
-the kernels compile) and warm start (the same again: they load from the cache).
+1,200-frame run; and the compiled kernels' cold start (``irdetect process`` on 48 frames
+with an empty numba cache: the kernels compile) and warm start (the same again: they load
+from the cache).
 
 ``--before JSON`` adds the figures of an earlier run (the raw measurements another
 checkout of this script saved with ``--json``) beside this run's: end to end and per
