@@ -619,9 +619,15 @@ def report(data: dict, figure: str | None = None) -> str:
     peaks += [(f"{frames:,} frames of 256x256", r["rss_mb"]) for frames, r, _, _ in long_rows]
     if peaks:
         top = max(peaks, key=lambda kv: kv[1])
+        grows = ""
+        if len(long_rows) > 1:
+            (n0, a, _, fa), (n1, b, _, fb) = long_rows[0], long_rows[-1]
+            grows = (f"; from {n0:,} to {n1:,} frames it went {a['rss_mb']:.0f} -> "
+                     f"{b['rss_mb']:.0f} MB (temporal) and {fa['rss_mb']:.0f} -> "
+                     f"{fb['rss_mb']:.0f} MB (`fast`): streaming memory above")
         lines.append(f"- peak memory under 400 MB for any length: highest peak RSS "
-                     f"{top[1]:.0f} MB ({top[0]}) -> {'reached' if top[1] < 400 else 'not reached'}"
-                     "; it does not grow with the sequence length (streaming memory above).")
+                     f"{top[1]:.0f} MB ({top[0]}) -> "
+                     f"{'reached' if top[1] < 400 else 'not reached'}{grows}.")
     starts = data.get("starts")
     if starts:
         cold, warm = starts["cold"], starts["warm"]
@@ -658,8 +664,11 @@ def report(data: dict, figure: str | None = None) -> str:
         "one read-ahead block` frames with `read_direct` (the block: a compressed HDF5 "
         "chunk, or at most 8 MB of plain chunks), ahead in chunk-aligned blocks "
         "(`irdetect.pipeline._Reader`); memory does not depend on the sequence length "
-        "(`tests/test_memory.py`). Track initiation runs once over all confirmed detections "
-        "at the end, so it is the one part that grows with the number of detections.",
+        "(`tests/test_memory.py`). The per-frame tracks, the fusion and the track "
+        "initiation run once at the end on the points the windows gave (a few per frame); "
+        "they measure each track against the detections of its own span only, so their "
+        "memory grows with the detections, not with tracks x detections (until "
+        "2026-12-06 it did: 430 MB after 20,000 frames against 304 MB after 1,200).",
         "- Result rows are buffered and written in blocks (`ResultsWriter.append`).",
         "- `--threads N` (`workers=N` of `iter_results` / `process_file`; CLI default 2) "
         "runs suppression to fusion of the next windows and the correlation (with its "

@@ -34,7 +34,8 @@ def _write_long(path, n_frames: int, seed: int = 0) -> int:
 def _peak_bytes(path, out, config=None) -> tuple[int, dict]:
     """Peak traced memory of the streaming part of ``irdetect process``: frames read in
     windows, every stage, tables written as they complete (what ``process_file`` does
-    before track initiation, which runs once over all the detections at the end)."""
+    before track initiation, which runs once over all the detections at the end: its
+    own test is below)."""
     counts = {"frames": 0, "combined_frames": 0, "detections": 0}
     tracemalloc.start()
     try:
@@ -137,3 +138,58 @@ def test_buffered_appends_write_every_row_in_order(tmp_path):
     assert len(want) == 10008
     assert res["candidates"].tobytes() == want.tobytes()
     assert len(res["segments"]) == 0 and res["segments"].dtype == tables.SEGMENT
+
+
+def _lines_of_detections(n_windows: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(DETECTION rows, CAMERA rows) of a long run's end: two new targets every 10 windows
+    of 12 frames, each on a straight line at 1 px/frame for 10 windows, one detection per
+    window at its middle frame, under a camera drifting 0.05 px/frame (so the initiation
+    tries scene tracks too). x = column, y = row."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for first in range(0, n_windows, 10):
+        for _ in range(2):
+            x0, y0 = rng.uniform(20, 180, 2)
+            vx, vy = rng.uniform(-1, 1, 2)
+            for k in range(first, min(first + 10, n_windows)):
+                t = 12 * k + 5.5 - 12 * first
+                rows.append((x0 + vx * t + 0.05 * 12 * k, y0 + vy * t, 12 * k, 12 * k + 11, k,
+                             vx, vy))
+    x, y, fs, fe, k, vx, vy = map(np.array, zip(*rows))
+    det = tables.from_columns(tables.DETECTION, x=x, y=y, frame_start=fs, frame_end=fe,
+                              combined_frame=k, vx=vx, vy=vy, score=np.ones(len(x)),
+                              n_members=np.ones(len(x), int),
+                              path=np.full(len(x), tables.PATH_COMBINED, np.int8))
+    f = np.arange(12 * n_windows)
+    cam = tables.from_columns(tables.CAMERA, frame=f, dx=0.05 * f, dy=np.zeros(len(f)))
+    return det[np.argsort(det["combined_frame"], kind="stable")], cam
+
+
+def _initiation_peak(n_windows: int) -> tuple[int, int]:
+    """(peak traced bytes, tracks) of the track initiation that ends a run of
+    ``n_windows`` windows (``irdetect.pipeline.fusion``)."""
+    from irdetect.combine import window_starts
+    from irdetect.pipeline.fusion import initiate_tracks, track_paths
+
+    det, cam = _lines_of_detections(n_windows)
+    config = ProcessConfig()
+    tracemalloc.start()
+    try:
+        tracks = initiate_tracks(det, config, cam, shape=(200, 200),
+                                 starts=window_starts(12 * n_windows, length=12, step=12),
+                                 length=12)
+        track_paths(tracks, det, cam, config.initiate.gate * config.initiate.sigma)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    return peak, len(tracks)
+
+
+def test_track_initiation_at_the_end_grows_with_the_detections_not_their_square():
+    # 10x the windows: 10x the detections and 10x the tracks. Anything of shape (tracks,
+    # detections) would grow 100x (it did: 0.6 -> 31 MB); the initiation's own work about
+    # 10x at most (0.6 -> 1.8 MB).
+    peak_short, n_short = _initiation_peak(100)
+    peak_long, n_long = _initiation_peak(1000)
+    assert n_short >= 15 and n_long >= 9 * n_short, (n_short, n_long)
+    assert peak_long < 10 * peak_short, (peak_short, peak_long)

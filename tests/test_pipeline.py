@@ -271,7 +271,7 @@ def test_a_target_slow_in_the_scene_under_a_fast_pan_is_band_2s(seed):
 
 @pytest.mark.parametrize("seed", [1, 2])
 def test_tracks_through_a_panning_camera_follow_their_targets(seed):
-    from irdetect.initiate import track_positions
+    from irdetect.initiate import positions_at, track_positions
     from irdetect.metrics.initiation import score_track_paths
 
     frames, truth = simulate("wan2008", rng=seed, n_frames=60, height=240, width=320,
@@ -292,6 +292,11 @@ def test_tracks_through_a_panning_camera_follow_their_targets(seed):
     assert np.hypot(*(moved[1] - drift[1])) > 0.5 * span * np.hypot(1.6, 1.2)
     with pytest.raises(ValueError, match="camera"):
         track_positions(row, f)
+    # pairs of (track, frame) give what the full table gives on its diagonal
+    both = np.concatenate([row, flat])
+    pairs = positions_at(both, f, out["camera"])
+    full = track_positions(both, f, out["camera"])
+    assert np.array_equal(pairs, full[[0, 1], [0, 1]])
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])

@@ -45,7 +45,8 @@ from irdetect.initiate.base import DEFAULTS, METHODS, POINT, ROW, check_params
 from irdetect.initiate.common import (_fit_chi2, fit_constant_velocity, merge_windows,
                                       scan_windows)
 from irdetect.initiate.contract import METHOD_MODULES, initiate, initiate_points
-from irdetect.initiate.images import camera_at, initiate_detections, track_positions
+from irdetect.initiate.images import (camera_at, initiate_detections, positions_at,
+                                     track_positions)
 from irdetect.initiate.scans import initiate_scans
 from irdetect.initiate.sensor import SensorModel, derive_params
 
@@ -56,4 +57,4 @@ _check_params = check_params
 __all__ = ["DEFAULTS", "METHODS", "METHOD_MODULES", "POINT", "ROW", "SensorModel",
            "camera_at", "check_params", "derive_params", "fit_constant_velocity", "initiate",
            "initiate_detections", "initiate_points", "initiate_scans", "merge_windows",
-           "scan_windows", "track_positions"]
+           "positions_at", "scan_windows", "track_positions"]

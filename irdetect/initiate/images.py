@@ -135,7 +135,7 @@ def camera_at(camera, frames) -> np.ndarray:
 
 
 def track_positions(tracks, frames, camera=None) -> np.ndarray:
-    """Image positions (x, y) px of tracks in frames.
+    """Image positions (x, y) px of tracks in frames: every track in every frame.
 
     Parameters
     ----------
@@ -153,16 +153,33 @@ def track_positions(tracks, frames, camera=None) -> np.ndarray:
     ndarray of shape (n, m, 2)
         Positions where the tracks' lines put them (also outside their frame spans).
     """
+    return positions_at(np.asarray(tracks)[:, None], np.asarray(frames, float)[None, :], camera)
+
+
+def positions_at(tracks, frames, camera=None) -> np.ndarray:
+    """Image positions (x, y) px of tracks in frames, element by element: ``tracks`` (a
+    ``tables.TRACK`` array) and ``frames`` broadcast against each other, as
+    ``track_positions``'s (n, 1) and (1, m) or a list of (track, frame) pairs (k,) and (k,).
+
+    Returns
+    -------
+    ndarray of the broadcast shape + (2,)
+    """
     tr = np.asarray(tracks)
     f = np.asarray(frames, float)
-    dt = f[None, :] - tr["frame_start"][:, None]
-    pos = np.stack([tr["x0"][:, None] + tr["vx"][:, None] * dt,
-                    tr["y0"][:, None] + tr["vy"][:, None] * dt], axis=-1)
-    scene = tr["scene"] if "scene" in (tr.dtype.names or ()) else np.zeros(len(tr), bool)
+    dt = f - tr["frame_start"]
+    pos = np.stack([tr["x0"] + tr["vx"] * dt, tr["y0"] + tr["vy"] * dt], axis=-1)
+    scene = tr["scene"] if "scene" in (tr.dtype.names or ()) else np.zeros(tr.shape, bool)
+    scene = np.broadcast_to(scene, dt.shape)
     if scene.any():
         if camera is None:
             raise ValueError("scene tracks need the camera's offsets (/camera)")
-        cf = camera_at(camera, f)                                     # (m, 2)
-        cs = camera_at(camera, tr["frame_start"][scene])              # (k, 2)
-        pos[scene] += cf[None, :, :] - cs[:, None, :]
+        move = _camera_at_nd(camera, f) - _camera_at_nd(camera, tr["frame_start"])
+        pos += np.where(scene[..., None], move, 0.0)
     return pos
+
+
+def _camera_at_nd(camera, frames) -> np.ndarray:
+    """``camera_at`` for frames of any shape: shape + (2,)."""
+    f = np.asarray(frames, float)
+    return camera_at(camera, f.ravel()).reshape(f.shape + (2,))

@@ -29,6 +29,7 @@ from dataclasses import asdict
 
 import cv2
 import numpy as np
+from scipy import sparse
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
@@ -281,9 +282,9 @@ def track_paths(tracks: np.ndarray, detections: np.ndarray, camera, gate: float)
     out = np.zeros(len(tracks), np.int8)
     if not len(tracks) or not len(detections):
         return out
-    held = _support(tracks, detections, camera, gate)[0]
-    for bit in (tables.PATH_COMBINED, tables.PATH_FRAME):
-        out |= np.where((held & ((detections["path"] & bit) > 0)[None]).any(1), bit, 0).astype(np.int8)
+    rows, cols, _ = _support(tracks, detections, camera, gate)
+    bits = detections["path"][cols] & (tables.PATH_COMBINED | tables.PATH_FRAME)
+    np.bitwise_or.at(out, rows, bits.astype(np.int8))
     return out
 
 
@@ -343,10 +344,11 @@ def _lines_of_their_own(tracks, detections, camera, gate: float) -> np.ndarray:
     keep = np.ones(len(tracks), bool)
     if not len(tracks):
         return keep
-    support = _support(tracks, detections, camera, gate)[0]
-    few = (support.sum(1) < LEAVING_VOTES) | (tracks["n_points"] < LEAVING_VOTES)
+    rows, cols, _ = _support(tracks, detections, camera, gate)
+    bounds = np.searchsorted(rows, np.arange(len(tracks) + 1))
+    few = (np.diff(bounds) < LEAVING_VOTES) | (tracks["n_points"] < LEAVING_VOTES)
     for i in np.flatnonzero(few):               # a loop over a few tracks
-        det = detections[support[i]]
+        det = detections[cols[bounds[i]:bounds[i + 1]]]
         v = np.tile([tracks["vx"][i], tracks["vy"][i]], (len(det), 1))
         span = (det["frame_end"] - det["frame_start"]).astype(float)
         if tracks["scene"][i] and camera is not None:
@@ -436,7 +438,8 @@ def _leaving_tracks(detections, camera, params: dict, tracks, *, shape, starts,
     from irdetect.initiate import track_positions
 
     gate = float(params["gate"] * params["sigma"])
-    free = ~_support(tracks, detections, camera, gate)[0].any(axis=0)
+    free = np.ones(len(detections), bool)
+    free[_support(tracks, detections, camera, gate)[1]] = False
     rest = detections[free]
     scans = len(np.unique(rest["combined_frame"]))
     if scans < LEAVING_VOTES:
@@ -449,9 +452,11 @@ def _leaving_tracks(detections, camera, params: dict, tracks, *, shape, starts,
         return cand, np.zeros(0, np.int64)
     h, w = shape
     mid = starts + 0.5 * (length - 1)
-    pos = track_positions(cand, mid, camera)                             # (n, windows, 2)
-    seen = ((pos[..., 0] >= 0) & (pos[..., 0] <= w - 1)
-            & (pos[..., 1] >= 0) & (pos[..., 1] <= h - 1)).sum(axis=1)
+    seen = np.zeros(len(cand), np.int64)
+    for i in range(0, len(cand), 64):    # (64, windows) positions at a time: a long
+        pos = track_positions(cand[i:i + 64], mid, camera)    # sequence has many of both
+        seen[i:i + 64] = ((pos[..., 0] >= 0) & (pos[..., 0] <= w - 1)
+                          & (pos[..., 1] >= 0) & (pos[..., 1] <= h - 1)).sum(axis=1)
     need = np.maximum(LEAVING_VOTES, [vote_threshold(params["vote_fraction"], int(n))
                                       for n in np.minimum(seen, window)])
     keep = (cand["n_points"] >= need) & (seen < len(starts))
@@ -485,16 +490,35 @@ MOVING_PX = 1.0
 
 
 def _support(tracks, detections, camera, gate: float):
-    """(support, dist) of shape (tracks, detections): a detection supports a track when
-    its time lies in the track's span and it is within ``gate`` px of the track's position
-    then; ``dist`` that distance."""
-    from irdetect.initiate import track_positions
+    """The detections each track holds: those whose time lies in the track's span and
+    that are within ``gate`` px of the track's position then.
+
+    Returns
+    -------
+    rows, cols : ndarray of int
+        Track and detection indices of each (track, detection) pair held, sorted by track,
+        then by detection.
+    dist : ndarray of float
+        Each pair's distance, px.
+
+    Only the detections in a track's span are measured, so the work and memory grow with
+    the detections of the tracks' spans, not with tracks x detections (a long sequence
+    has many of both).
+    """
+    from irdetect.initiate import positions_at
 
     t = 0.5 * (detections["frame_start"] + detections["frame_end"])
-    pos = track_positions(tracks, t, camera)                              # (n, d, 2)
-    dist = np.hypot(pos[..., 0] - detections["x"][None], pos[..., 1] - detections["y"][None])
-    inside = (t[None] >= tracks["frame_start"][:, None]) & (t[None] <= tracks["frame_end"][:, None])
-    return inside & (dist <= gate), dist
+    order = np.argsort(t, kind="stable")
+    lo = np.searchsorted(t[order], tracks["frame_start"], "left")
+    n = np.maximum(np.searchsorted(t[order], tracks["frame_end"], "right") - lo, 0)
+    rows = np.repeat(np.arange(len(tracks)), n)
+    cols = order[np.arange(n.sum()) + np.repeat(lo - (np.cumsum(n) - n), n)]
+    by_index = np.lexsort((cols, rows))
+    rows, cols = rows[by_index], cols[by_index]
+    pos = positions_at(tracks[rows], t[cols], camera)
+    dist = np.hypot(pos[:, 0] - detections["x"][cols], pos[:, 1] - detections["y"][cols])
+    held = dist <= gate
+    return rows[held], cols[held], dist[held]
 
 
 def _distinct_tracks(tracks, detections, camera, gate: float, need) -> np.ndarray:
@@ -510,21 +534,29 @@ def _distinct_tracks(tracks, detections, camera, gate: float, need) -> np.ndarra
     one for all)."""
     if len(tracks) < 2:
         return np.arange(len(tracks))
-    support, dist = _support(tracks, detections, camera, gate)
-    count = support.sum(1)
-    mean = np.where(count > 0, (dist * support).sum(1) / np.maximum(count, 1), np.inf)
+    rows, cols, dist = _support(tracks, detections, camera, gate)
+    n = len(tracks)
+    count = np.bincount(rows, minlength=n)
+    mean = np.where(count > 0, np.bincount(rows, dist, minlength=n) / np.maximum(count, 1),
+                    np.inf)
     order = np.lexsort((mean, -count))
-    need = np.broadcast_to(np.asarray(need), (len(tracks),))
-    kept: list[int] = []
+    need = np.broadcast_to(np.asarray(need), (n,))
+    bounds = np.searchsorted(rows, np.arange(n + 1))
+    held = sparse.csr_matrix((np.ones(len(rows), np.int64), (rows, cols)),
+                             shape=(n, len(detections)))
+    shared = (held @ held.T).tocsr()    # (tracks, tracks): the detections two tracks share
+    kept = np.zeros(n, bool)
     claimed = np.zeros(len(detections), bool)
-    for i in order:                     # a loop over the tracks (a handful)
-        if kept and (count[i] == 0 or (support[i] & ~claimed).sum() < need[i] or any(
-                (support[i] & support[j]).sum() >= 0.5 * min(count[i], count[j])
-                for j in kept)):
+    for i in order:                     # a loop over the tracks
+        mine = cols[bounds[i]:bounds[i + 1]]
+        others = shared.indices[shared.indptr[i]:shared.indptr[i + 1]]
+        both = shared.data[shared.indptr[i]:shared.indptr[i + 1]][kept[others]]
+        if kept.any() and (count[i] == 0 or (~claimed[mine]).sum() < need[i] or (
+                both >= 0.5 * np.minimum(count[i], count[others[kept[others]]])).any()):
             continue
-        kept.append(int(i))
-        claimed |= support[i]
-    return np.sort(np.array(kept, dtype=np.int64))
+        kept[i] = True
+        claimed[mine] = True
+    return np.flatnonzero(kept)
 
 
 def finish(combined: np.ndarray, peaks: np.ndarray, camera: np.ndarray,
