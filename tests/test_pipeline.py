@@ -1,6 +1,7 @@
 """The whole front end: simulate, run, compare with truth; streaming; bad input."""
 
 import dataclasses
+import logging
 
 import h5py
 import numpy as np
@@ -55,6 +56,20 @@ def test_streaming_file_matches_in_memory_and_writes_the_contract(tmp_path):
     assert summary["detections"] == len(back["detections"]) > 0
     with pytest.raises(InputError, match="exists"):
         process_file(seq, res, ProcessConfig())
+
+
+def test_frames_after_the_last_full_window_are_said_to_be_unexamined(tmp_path, caplog):
+    frames, truth = simulate("wan2008", snr=4, rng=5, n_frames=41, height=64, width=64,
+                             n_targets=1)
+    seq = tmp_path / "seq.h5"
+    write_sequence(seq, frames, truth=truth)
+    with caplog.at_level(logging.INFO, logger="irdetect"):
+        summary = process_file(seq, tmp_path / "out.h5", ProcessConfig())
+    assert summary["combined_frames"] == 3              # frames 0-35
+    said = [r.getMessage() for r in caplog.records if "not examined" in r.getMessage()]
+    assert said == ["frames 36-40 come after the last full combined frame and were not "
+                    "examined"]
+    assert len(read_results(tmp_path / "out.h5")["camera"]) == 36
 
 
 def test_overlapping_windows_with_a_spatial_suppressor():

@@ -494,6 +494,10 @@ def process_file(input, output, config: ProcessConfig | None = None, *, dataset=
             out.attrs["n_combined"] = n_combined
         lap(timings, "write", t)
     seconds = time.perf_counter() - t0
+    examined = frames_needed(n_combined, length=run.combine.length, step=run.combine.step)
+    if examined < n_frames:
+        log.info("frames %d-%d come after the last full combined frame and were not "
+                 "examined", examined, n_frames - 1)
     log.info("%d frames -> %d combined frames, %d candidates, %d detections, %d segments, "
              "%d tracks", n_frames, n_combined, counts["candidates"], counts["detections"],
              counts["segments"], len(tracks))
