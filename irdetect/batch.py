@@ -123,8 +123,8 @@ class Job:
 # --- inputs ---------------------------------------------------------------------------
 
 def _sequence_suffixes() -> set[str]:
-    from irdetect.io.sources import HDF5_SUFFIXES, VIDEO_SUFFIXES
-    return set(HDF5_SUFFIXES) | set(VIDEO_SUFFIXES) | {".npy"}
+    from irdetect.io.sources import HDF5_SUFFIXES, MAT_SUFFIXES, VIDEO_SUFFIXES
+    return set(HDF5_SUFFIXES) | set(VIDEO_SUFFIXES) | set(MAT_SUFFIXES) | {".npy"}
 
 
 def is_image_folder(path: Path) -> bool:
@@ -144,7 +144,7 @@ def expand_inputs(inputs: Iterable[str | os.PathLike]) -> list[Path]:
     Parameters
     ----------
     inputs : iterable of str or os.PathLike
-        Each is a sequence file (HDF5, video, ``.npy``), a folder of images (one
+        Each is a sequence file (HDF5, video, ``.npy``, ``.mat``), a folder of images (one
         sequence), a folder of sequences (its sequence files and image subfolders, not
         recursive), or a glob pattern (``data/*.h5``, ``runs/**/*.h5``) for when the shell
         does not expand it.
@@ -177,7 +177,7 @@ def expand_inputs(inputs: Iterable[str | os.PathLike]) -> list[Path]:
             if m.is_dir() and not is_image_folder(m):
                 members = _folder_sequences(m)
                 if not members and len(matches) == 1:
-                    raise InputError("folder holds no sequence (HDF5, video, .npy or a folder "
+                    raise InputError("folder holds no sequence (HDF5, video, .npy, .mat or a folder "
                                      "of images)", m)
                 found.extend(members)
             elif not _is_results(m):

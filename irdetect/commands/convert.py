@@ -1,4 +1,5 @@
-"""Convert any readable sequence (HDF5, folder of images, multi-page TIFF, video, .npy) to
+"""Convert any readable sequence (HDF5, folder of images, multi-page TIFF, video, .npy,
+MAT-file) to
 the HDF5 contract.
 
 With --truth, a point annotation file (one 'x y' line per frame, x = column, y = row,
@@ -19,10 +20,11 @@ log = logging.getLogger(__name__)
 
 
 def add_arguments(p):
-    p.add_argument("input", help="HDF5 file, folder of images, multi-page TIFF, video file or .npy")
+    p.add_argument("input", help="HDF5 file, folder of images, multi-page TIFF, video file, .npy or "
+                   "MATLAB .mat")
     p.add_argument("-o", "--output", required=True, help="HDF5 file to write")
     p.add_argument("--truth", help="point annotation file, one 'x y' line per frame")
-    p.add_argument("--dataset", help="HDF5 input: dataset path (default /frames)")
+    p.add_argument("--dataset", help="HDF5 input: dataset path (default /frames); MAT-file: variable name")
     p.add_argument("--frame-rate", type=float, help="frames per second to record")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
 

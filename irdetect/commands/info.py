@@ -14,9 +14,9 @@ RESULT_TABLES = ("detections", "candidates", "segments", "tracks", "track_points
 
 
 def add_arguments(p):
-    p.add_argument("file", help="sequence (HDF5, image folder, multi-page TIFF, video, .npy), "
+    p.add_argument("file", help="sequence (HDF5, image folder, multi-page TIFF, video, .npy, .mat), "
                    "scans or results")
-    p.add_argument("--dataset", help="HDF5 sequence: dataset path (default /frames)")
+    p.add_argument("--dataset", help="HDF5 sequence: dataset path (default /frames); MAT-file: variable name")
 
 
 def describe(path, dataset=None) -> list[str]:

@@ -25,7 +25,7 @@ def add_arguments(p):
                    help="figure file (.png, .jpg, .tif, .pdf or .svg)")
     p.add_argument("--sequence", help="the sequence the results were made from (default: "
                    "the results' input attribute, looked up beside the results file)")
-    p.add_argument("--dataset", help="HDF5 sequence: dataset path (default /frames)")
+    p.add_argument("--dataset", help="HDF5 sequence: dataset path (default /frames); MAT-file: variable name")
     p.add_argument("--raw", action="store_true",
                    help="max projection of the raw frames (default: of the suppressed frames)")
     p.add_argument("--truth", nargs="?", const=True, default=None, metavar="FILE",

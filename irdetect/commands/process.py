@@ -34,8 +34,8 @@ DEFAULT_THREADS = 2
 
 def add_arguments(p):
     p.add_argument("inputs", nargs="+", metavar="INPUT",
-                   help="sequence: HDF5 file, folder of images, multi-page TIFF, video file or "
-                   ".npy; several inputs, folders of sequences or glob patterns with --out-dir")
+                   help="sequence: HDF5 file, folder of images, multi-page TIFF, video file, "
+                   ".npy or .mat; several inputs, folders of sequences or glob patterns with --out-dir")
     p.add_argument("-o", "--output",
                    help="results file of a single input (default: INPUT_NAME.irdetect.h5 in "
                    "the current folder)")
@@ -58,7 +58,7 @@ def add_arguments(p):
                    help=f"single input: threads over windows (default {DEFAULT_THREADS}: the "
                    "correlation of each window triple runs beside the next windows' front "
                    "end); the results do not depend on it")
-    p.add_argument("--dataset", help="HDF5 input: dataset path (default /frames)")
+    p.add_argument("--dataset", help="HDF5 input: dataset path (default /frames); MAT-file: variable name")
     p.add_argument("--force", action="store_true",
                    help="overwrite an existing output (batch: redo finished inputs)")
     p.add_argument("--video", metavar="OUT", help="single input: also write the annotated "

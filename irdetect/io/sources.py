@@ -2,8 +2,8 @@
 
 ``open_sequence(path)`` picks the reader from the path: an HDF5 file, a folder of images
 (PNG / TIFF / BMP, 8 or 16 bit, natural sort), a multi-page TIFF or OME-TIFF stack
-(``tifffile``, the ``tiff`` extra), a video file (OpenCV) or a ``.npy`` file
-(memory-mapped). Every reader is a :class:`FrameSource`: frames of shape (H, W), sliced
+(``tifffile``, the ``tiff`` extra), a video file (OpenCV), a ``.npy`` file
+(memory-mapped) or a MATLAB MAT-file (an H x W x T variable). Every reader is a :class:`FrameSource`: frames of shape (H, W), sliced
 as ``src[a:b]`` -> ndarray of shape (b - a, H, W) in the file's dtype.
 """
 
@@ -27,6 +27,12 @@ IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg", ".pgm"}
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".mpg", ".mpeg", ".wmv", ".m4v"}
 HDF5_SUFFIXES = {".h5", ".hdf5", ".hdf", ".he5"}
 TIFF_SUFFIXES = {".tif", ".tiff"}
+MAT_SUFFIXES = {".mat"}
+#: the text a MATLAB MAT-file of version 7.3 (an HDF5 file) starts with
+MATLAB_HDF5 = b"MATLAB 7.3 MAT-file"
+#: MATLAB classes of numeric arrays (the ``MATLAB_class`` attribute of a v7.3 variable)
+MATLAB_NUMERIC = {"double", "single", "int8", "uint8", "int16", "uint16", "int32", "uint32",
+                  "int64", "uint64"}
 SUPPORTED_DTYPES = (np.uint8, np.uint16, np.int16, np.int32, np.float32, np.float64)
 
 
@@ -249,6 +255,94 @@ class HDF5Source(FrameSource):
             self._file.close()
 
 
+class MatlabHDF5Source(HDF5Source):
+    """Frames of a MATLAB MAT-file of version 7.3 (``save -v7.3``, an HDF5 file).
+
+    The sequence is a 3-D numeric variable of H x W x T, frame k being ``seq(:,:,k)``
+    (MATLAB's image stacks: ``cat(3, ...)``, ``implay``). HDF5 holds MATLAB's
+    column-major array with its axes reversed, (T, W, H), so each frame is read
+    transposed. The variable is the one named by ``dataset``, else the file's only 3-D
+    numeric variable.
+    """
+
+    def __init__(self, path, dataset: str | None = None):
+        super().__init__(path, dataset)
+        t, w, h = self.shape
+        self.shape = (t, h, w)
+
+    def _find_dataset(self, name):
+        if name is not None:
+            return super()._find_dataset(name)
+        found = [k for k, obj in self._file.items()
+                 if isinstance(obj, h5py.Dataset) and obj.ndim == 3
+                 and _text(obj.attrs.get("MATLAB_class")) in MATLAB_NUMERIC]
+        return self._file[_only_variable(found, self.path)]
+
+    def _read(self, start, stop):
+        return np.ascontiguousarray(super()._read(start, stop).transpose(0, 2, 1))
+
+    def read_into(self, start, stop, out):
+        if stop > start:
+            out[...] = super()._read(start, stop).transpose(0, 2, 1)
+
+
+class MatSource(FrameSource):
+    """Frames of a MATLAB MAT-file of version 7 or older (``scipy.io.loadmat``, read
+    whole: such a file holds at most 2 GB per variable): a 3-D numeric variable of
+    H x W x T, frame k being ``seq(:,:,k)``; the one named by ``dataset``, else the file's
+    only one."""
+
+    def __init__(self, path, dataset: str | None = None):
+        from scipy.io import loadmat
+        from scipy.io.matlab import MatReadError
+
+        self.path = os.fspath(path)
+        try:
+            data = loadmat(self.path, variable_names=None if dataset is None else [dataset])
+        except FileNotFoundError:
+            raise InputError("file not found", path) from None
+        except (MatReadError, ValueError, TypeError, OSError, IndexError, EOFError,
+                NotImplementedError, zlib.error) as exc:
+            raise InputError(f"not a readable MAT-file ({_short(exc)})", path) from None
+        if dataset is not None and dataset not in data:
+            raise InputError(f"no variable {dataset!r} in the file", path)
+        found = [k for k, v in data.items() if not k.startswith("__")
+                 and isinstance(v, np.ndarray) and v.ndim == 3 and v.dtype.kind in "uif"]
+        name = dataset if dataset is not None else _only_variable(found, self.path)
+        frames = np.asarray(data[name])
+        if frames.ndim != 3:
+            raise InputError(f"variable {name!r} is {frames.ndim}-D; expected H x W x T",
+                             path)
+        self._array = np.moveaxis(frames, 2, 0)                      # (T, H, W)
+        _check_stack(self.path, self._array.shape, self._array.dtype)
+        self.shape = tuple(int(n) for n in self._array.shape)
+        self.dtype = self._array.dtype
+
+    def _read(self, start, stop):
+        return np.ascontiguousarray(self._array[start:stop])
+
+
+def _only_variable(names: list[str], path) -> str:
+    """The one MATLAB variable of ``names`` (3-D numeric ones), else an InputError."""
+    if not names:
+        raise InputError("no 3-D numeric variable (H x W x T) in the MAT-file", path)
+    if len(names) > 1:
+        raise InputError(f"several 3-D variables ({', '.join(names)}); choose one with "
+                         "--dataset", path)
+    return names[0]
+
+
+def _text(value) -> str | None:
+    """An HDF5 string attribute as str (h5py gives bytes or str)."""
+    return value.decode() if isinstance(value, bytes) else value
+
+
+def is_matlab_hdf5(path) -> bool:
+    """True when the file is a MATLAB MAT-file of version 7.3 (its header's text)."""
+    with open(path, "rb") as f:
+        return f.read(len(MATLAB_HDF5)) == MATLAB_HDF5
+
+
 def _frame_rate(value, path) -> float | None:
     """The ``frame_rate`` attribute as a positive number, or None when absent."""
     if value is None:
@@ -300,7 +394,7 @@ def folder_images(folder: str | os.PathLike) -> list[Path]:
     folder = Path(folder)
     files = _images_in(folder)
     if not files and (folder / "frames").is_dir() and not any(
-            p.suffix.lower() in HDF5_SUFFIXES | VIDEO_SUFFIXES | {".npy"}
+            p.suffix.lower() in HDF5_SUFFIXES | VIDEO_SUFFIXES | MAT_SUFFIXES | {".npy"}
             for p in folder.iterdir()):
         files = _images_in(folder / "frames")
     return files
@@ -584,10 +678,11 @@ def open_sequence(path: str | os.PathLike, dataset: str | None = None) -> FrameS
     Parameters
     ----------
     path : str or os.PathLike
-        An HDF5 file, a folder of images, a multi-page TIFF, a video file or a ``.npy``
-        file.
+        An HDF5 file, a folder of images, a multi-page TIFF, a video file, a ``.npy``
+        file or a MATLAB MAT-file (a variable of H x W x T; any version).
     dataset : str, optional
-        HDF5 only: the dataset path (default ``/frames``, else the only 3-D dataset).
+        HDF5: the dataset path (default ``/frames``, else the only 3-D dataset); MAT-file:
+        the variable (default: the only 3-D numeric one).
 
     Returns
     -------
@@ -614,6 +709,8 @@ def open_sequence(path: str | os.PathLike, dataset: str | None = None) -> FrameS
         return NpySource(p)
     if suffix in VIDEO_SUFFIXES:
         return VideoSource(p)
+    if suffix in MAT_SUFFIXES or is_matlab_hdf5(p):
+        return MatlabHDF5Source(p, dataset) if h5py.is_hdf5(p) else MatSource(p, dataset)
     if suffix in HDF5_SUFFIXES or h5py.is_hdf5(p):
         return HDF5Source(p, dataset)
     if suffix in TIFF_SUFFIXES:
@@ -621,7 +718,7 @@ def open_sequence(path: str | os.PathLike, dataset: str | None = None) -> FrameS
     if suffix in IMAGE_SUFFIXES:
         raise InputError("a single image is not a sequence; give the folder of frames", path)
     raise InputError("unknown input type (expected .h5, a folder of images, a multi-page "
-                     "TIFF, a video or .npy)", path)
+                     "TIFF, a video, .npy or .mat)", path)
 
 
 def _short(exc: Exception) -> str:
