@@ -99,3 +99,16 @@ def test_cli_evaluate_bad_input(cli, tmp_path):
     assert code == 2 and "not found" in err
     code, _, err = cli("evaluate", "res.h5", "--truth", "notruth.h5", "--gate", "-1")
     assert code == 2 and "--gate" in err
+
+
+def test_the_table_gives_the_roc_at_a_few_false_alarm_rates():
+    from irdetect.commands.evaluate import ROC_RATES, format_table
+
+    curve = {"thresholds": [np.inf, 9.0, 6.0, 4.0, 3.0], "pd": [0.0, 0.5, 0.75, 0.9, 1.0],
+             "false_per_frame": [0.0, 0.0, 0.005, 0.05, 0.4]}
+    text = format_table({"detection": {"pd": 1.0, "roc": curve}})
+    rows = [line.split() for line in text.splitlines()[3:3 + len(ROC_RATES) + 1]]
+    # best Pd with at most 0, 0.001, 0.01, 0.1 false per frame, then every detection
+    assert rows == [["0", "0.5", "9"], ["0.001", "0.5", "9"], ["0.01", "0.75", "6"],
+                    ["0.1", "0.9", "4"], ["all", "1", "3"]]
+    assert "--json" in text.splitlines()[3 + len(ROC_RATES) + 1]

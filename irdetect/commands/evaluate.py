@@ -197,21 +197,43 @@ def legend_line(scores: dict) -> str:
     return "legend: " + "; ".join(text for key, text in LEGEND.items() if key in keys)
 
 
+#: the false detections per frame at which the plain-text table gives the ROC's Pd
+ROC_RATES = (0.0, 0.001, 0.01, 0.1)
+
+
 def format_table(scores: dict) -> str:
     """Plain-text table, one block per section, and the legend line under it (a ROC
-    curve as one line per threshold)."""
+    curve as its best Pd at a few false-alarm rates, ``ROC_RATES``, and with every
+    detection; the whole curve is in ``--json``)."""
     lines = []
     for title, values in scores.items():
         lines.append(f"{title}")
         for key, value in values.items():
             if isinstance(value, dict):           # the ROC's columns
-                lines.append(f"  {key:<22} {'  '.join(f'{k:>15}' for k in value)}")
-                for row in zip(*value.values()):
-                    lines.append(f"  {'':<22} {'  '.join(f'{_number(v):>15}' for v in row)}")
+                lines += _roc_lines(key, value)
                 continue
             lines.append(f"  {key:<22} {_number(value)}")
     lines.append(legend_line(scores))
     return "\n".join(lines)
+
+
+def _roc_lines(key: str, curve: dict) -> list[str]:
+    """The ROC's rows at ``ROC_RATES``: the best Pd of a threshold with at most that many
+    false detections per frame, and that threshold; then every detection's row."""
+    pd, rate = np.asarray(curve["pd"], float), np.asarray(curve["false_per_frame"], float)
+    thresholds = np.asarray(curve["thresholds"], float)
+    lines = [f"  {key:<22} {'false/frame <=':>15}  {'pd':>15}  {'snr >=':>15}"]
+    rows = []
+    for limit in ROC_RATES:
+        ok = np.flatnonzero(rate <= limit)
+        if len(ok):
+            best = ok[np.argmax(pd[ok])]
+            rows.append((_number(limit), pd[best], thresholds[best]))
+    if len(pd):
+        rows.append(("all", pd[-1], thresholds[-1]))
+    lines += [f"  {'':<22} {a:>15}  {_number(b):>15}  {_number(c):>15}" for a, b, c in rows]
+    lines.append(f"  {'':<22} (the whole curve: --json, or irdetect plot --roc)")
+    return lines
 
 
 def _number(value) -> str:
