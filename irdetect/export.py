@@ -1,4 +1,4 @@
-"""Results in the formats other tools read: CSV tables, MOTChallenge text, JSON.
+"""Results in the formats other tools read: CSV tables, MOTChallenge text, JSON, MATLAB.
 
 ``export_results(results, folder, fmt)`` writes, atomically and without overwriting
 unless ``force``:
@@ -10,7 +10,11 @@ unless ``force``:
   py-motmetrics read: ``frame, id, bb_left, bb_top, bb_width, bb_height, conf, x, y, z``
   per track per frame;
 * ``json``: ``results.json``, the root attributes, the configuration and every table as
-  a list of records (NaN written as null).
+  a list of records (NaN written as null);
+* ``mat``: ``results.mat`` (MATLAB, ``load results.mat``), every table and
+  ``track_positions`` as a struct of column vectors (``detections.x``), ``attrs`` as a
+  struct and ``config`` as JSON text; values as in the results file (frames and pixels
+  counted from 0, x = column, y = row: pixel (x, y) of frame f is ``seq(y+1, x+1, f+1)``).
 
 Track positions are where each track's line puts it in each frame of its span
 (``irdetect.initiate.track_positions``; a scene track follows the camera of ``/camera``);
@@ -31,7 +35,7 @@ from irdetect import tables
 from irdetect.errors import InputError
 from irdetect.io.atomic import atomic_output, check_output_path
 
-FORMATS = ("csv", "mot", "json")
+FORMATS = ("csv", "mot", "json", "mat")
 
 #: rows of ``track_positions``: where a track is in one frame (x = column, y = row, px)
 POSITION = np.dtype([("frame", "<i8"), ("track_id", "<i8"), ("x", "<f8"), ("y", "<f8"),
@@ -41,7 +45,7 @@ POSITION = np.dtype([("frame", "<i8"), ("track_id", "<i8"), ("x", "<f8"), ("y", 
 MOT_BOX = 5.0
 
 FILES = {"csv": ("detections.csv", "tracks.csv", "track_positions.csv"),
-         "mot": ("tracks_mot.txt",), "json": ("results.json",)}
+         "mot": ("tracks_mot.txt",), "json": ("results.json",), "mat": ("results.mat",)}
 
 
 def track_positions(results) -> np.ndarray:
@@ -123,7 +127,7 @@ def export_files(folder: str | os.PathLike, fmt: str) -> list[Path]:
 
 def export_results(results, folder: str | os.PathLike, fmt: str, *, box: float = MOT_BOX,
                    force: bool = False) -> list[Path]:
-    """Write a results file's tables in ``fmt`` (csv, mot or json) into ``folder``.
+    """Write a results file's tables in ``fmt`` (csv, mot, json or mat) into ``folder``.
 
     Parameters
     ----------
@@ -131,7 +135,7 @@ def export_results(results, folder: str | os.PathLike, fmt: str, *, box: float =
         Read with ``irdetect.io.read_results`` (structured arrays).
     folder : str or os.PathLike
         Output folder; created when missing (its parent must exist).
-    fmt : {"csv", "mot", "json"}
+    fmt : {"csv", "mot", "json", "mat"}
     box : float
         Side of the MOT boxes (px), see ``mot_rows``.
     force : bool
@@ -152,10 +156,11 @@ def export_results(results, folder: str | os.PathLike, fmt: str, *, box: float =
     paths = export_files(folder, fmt)
     from irdetect.metrics.initiation import scan_tracks_of
 
-    if fmt != "json" and (scan_tracks_of(results, warn=False) is not None or not any(
+    scans = scan_tracks_of(results, warn=False) is not None
+    if fmt in ("csv", "mot") and (scans or not any(
             name in results for name in ("detections", "tracks", "track_points"))):
         raise InputError("holds no detections or image tracks (results of irdetect "
-                         "initiate on scans go out with --format json)", results.path)
+                         "initiate on scans go out with --format json or mat)", results.path)
     folder = Path(folder)
     if not folder.is_dir():
         check_output_path(folder, force=False)                 # the parent must exist
@@ -163,7 +168,8 @@ def export_results(results, folder: str | os.PathLike, fmt: str, *, box: float =
     inputs = (results.path,)
     for path in paths:
         check_output_path(path, force, inputs)
-    positions = track_positions(results)
+    # scan tracks are lines in the scans' (x, y), not image tracks over frames
+    positions = np.zeros(0, POSITION) if scans else track_positions(results)
     if fmt == "csv":
         for path, table in zip(paths, (_table(results, "detections"),
                                        _table(results, "tracks"), positions)):
@@ -172,6 +178,16 @@ def export_results(results, folder: str | os.PathLike, fmt: str, *, box: float =
         with atomic_output(paths[0], force=force, inputs=inputs, suffix=paths[0].suffix) as tmp:
             np.savetxt(tmp, mot_rows(positions, box=box), delimiter=",",
                        fmt=["%d", "%d", "%.3f", "%.3f", "%g", "%g", "%.6g", "%d", "%d", "%d"])
+    elif fmt == "mat":
+        from scipy.io import savemat
+
+        doc = {name: _columns(t) for name, t in results.tables.items()}
+        doc.update(track_positions=_columns(positions),
+                   config=_plain_attr(results.attrs.get("config", "")),
+                   attrs={k: _plain_attr(v) for k, v in results.attrs.items()
+                          if k != "config"})
+        with atomic_output(paths[0], force=force, inputs=inputs, suffix=paths[0].suffix) as tmp:
+            savemat(tmp, doc, do_compression=True, oned_as="column")
     else:
         doc = {"attrs": {k: _finite(v) for k, v in results.attrs.items() if k != "config"},
                "config": results.config,
@@ -201,6 +217,16 @@ def _records(table: np.ndarray) -> list[dict]:
     names = table.dtype.names or ()
     columns = {n: [_finite(v) for v in table[n].tolist()] for n in names}
     return [dict(zip(names, values)) for values in zip(*columns.values())]
+
+
+def _columns(table: np.ndarray) -> dict:
+    """A table as MATLAB sees a struct of column vectors: field -> 1-D array."""
+    return {n: np.ascontiguousarray(table[n]) for n in table.dtype.names or ()}
+
+
+def _plain_attr(value):
+    """An HDF5 attribute as savemat takes it (text as str, not bytes)."""
+    return value.decode() if isinstance(value, bytes) else value
 
 
 def _finite(value):

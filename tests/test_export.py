@@ -111,7 +111,44 @@ def test_csv_and_json_hold_every_table(processed, cli, tmp_path):
         with ResultsWriter(tmp_path / f"{name}.h5") as out:
             out.write(name, table)
         code, _, err = cli("export", f"{name}.h5", "--format", "mot", "-o", "out3")
-        assert code == 2 and "--format json" in err and not (tmp_path / "out3").exists()
+        assert code == 2 and "--format json or mat" in err and not (tmp_path / "out3").exists()
+
+
+def test_scan_tracks_of_initiate_go_out_as_json_and_mat(cli, tmp_path):
+    from scipy.io import loadmat
+
+    assert cli("simulate-scans", "scans.h5", "--seed", "1", "-q")[0] == 0
+    assert cli("initiate", "scans.h5", "-o", "r.h5", "-q")[0] == 0
+    tracks = read_results(tmp_path / "r.h5")["tracks"]
+    assert len(tracks) and "scan_start" in tracks.dtype.names
+    for fmt in ("json", "mat"):
+        code, _, err = cli("export", "r.h5", "--format", fmt, "-o", "out")
+        assert code == 0, err
+    doc = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert len(doc["tables"]["tracks"]) == len(tracks) and doc["track_positions"] == []
+    mat = loadmat(tmp_path / "out" / "results.mat", squeeze_me=True, struct_as_record=False)
+    np.testing.assert_array_equal(np.atleast_1d(mat["tracks"].scan_start), tracks["scan_start"])
+
+
+def test_mat_holds_every_table_as_matlab_structs(processed, cli, tmp_path):
+    from scipy.io import loadmat
+
+    folder, _ = processed
+    code, _, err = cli("export", folder / "res.h5", "--format", "mat", "-o", "out")
+    assert code == 0, err
+    res = read_results(folder / "res.h5")
+    mat = loadmat(tmp_path / "out" / "results.mat", squeeze_me=True, struct_as_record=False)
+    for name, table in res.tables.items():
+        got = mat[name]
+        for field in table.dtype.names:
+            np.testing.assert_array_equal(np.atleast_1d(getattr(got, field)), table[field],
+                                          err_msg=f"{name}.{field}")
+    span = res["tracks"]["frame_end"] - res["tracks"]["frame_start"] + 1
+    assert np.atleast_1d(mat["track_positions"].x).size == span.sum()
+    assert mat["attrs"].input == "seq.h5" and json.loads(mat["config"])["combine"]
+    # MATLAB's column vectors (N x 1), not rows
+    raw = loadmat(tmp_path / "out" / "results.mat")
+    assert raw["detections"]["x"][0, 0].shape == (len(res["detections"]), 1)
 
 
 def test_read_results_gives_dataframes_when_pandas_is_there(processed, monkeypatch):

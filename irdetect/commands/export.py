@@ -4,8 +4,9 @@ csv: detections.csv, tracks.csv and track_positions.csv (each track's x, y in ev
 of its span). mot: tracks_mot.txt in the MOTChallenge text format (frame, id, bb_left,
 bb_top, bb_width, bb_height, conf, x, y, z; frames and pixels counted from 1 as MOT does,
 a square box of --box px centred on each point), read by TrackEval and py-motmetrics.
-json: results.json, the attributes, the configuration and every table. Existing files are
-kept unless --force. See docs/format.md.
+json: results.json, the attributes, the configuration and every table. mat: results.mat
+for MATLAB, every table a struct of column vectors (values counted from 0, as in the
+results file). Existing files are kept unless --force. See docs/format.md.
 """
 
 from __future__ import annotations
