@@ -197,12 +197,16 @@ def draw_tracks(ax, background, shape, overlay: Overlay, *, gamma: float = 1.0) 
     windows = PLOT_COLOURS["windows"]
     colours = [windows[int(k) % len(windows)] for k in det["combined_frame"]]
     ax.scatter(det["x"], det["y"], s=40, facecolors="none", edgecolors=colours,
-               linewidths=1.0, zorder=3, label="detection (colour: window)")
+               linewidths=1.0, zorder=3,
+               label="detection (colour: window)" if len(det) else None)
     tp = overlay.track_points
     for i, tid in enumerate(np.unique(tp["track_id"])):
         rows = tp[tp["track_id"] == tid]
         ax.plot(rows["x"], rows["y"], color=PLOT_COLOURS["tracker"], lw=1.0, zorder=4,
                 label="tracker path" if i == 0 else None)
+        ax.annotate(f"#{int(tid)}", (rows["x"][-1], rows["y"][-1]), xytext=(4, -10),
+                    textcoords="offset points", color=PLOT_COLOURS["tracker"], fontsize=8,
+                    zorder=6)
     drawn = 0
     for row in overlay.tracks:
         if not (np.isfinite(row["x0"]) and np.isfinite(row["vx"])):
@@ -284,7 +288,9 @@ def draw_hough(ax, hough: dict, tracks: np.ndarray):
 
 def plot_results(results, source=None, *, suppressed: bool = True, truth=None,
                  scale: float | None = None, gamma: float = 1.0, progress: bool = False):
-    """The figure of a results file: tracks over the max projection | Hough accumulator.
+    """The figure of a results file: tracks over the max projection | Hough accumulator
+    (``irdetect process``), or the tracker's paths over the max projection alone
+    (``irdetect track``).
 
     Parameters
     ----------
@@ -305,19 +311,21 @@ def plot_results(results, source=None, *, suppressed: bool = True, truth=None,
     -------
     matplotlib.figure.Figure
         On an Agg canvas; ``fig.axes[0]`` is the tracks panel (data coordinates x, y px),
-        ``fig.axes[1]`` the accumulator (theta in degrees, rho in px). Write it with
-        ``write_figure``.
+        ``fig.axes[1]`` the accumulator (theta in degrees, rho in px; not for the results
+        of ``irdetect track``). Write it with ``write_figure``.
 
     Raises
     ------
     InputError
-        No /detections, results of another sequence, or matplotlib missing.
+        Neither /detections nor /track_points, results of another sequence, or
+        matplotlib missing.
     """
     Figure, Canvas = require_matplotlib()
     found = results.tables
-    if "detections" not in found:
-        raise InputError("holds no /detections: not the results of irdetect process",
-                         results.path)
+    tracker = "detections" not in found and "track_points" in found
+    if "detections" not in found and not tracker:
+        raise InputError("holds neither /detections nor /track_points: not the results of "
+                         "irdetect process or track", results.path)
     if source is not None:
         check_results_match(results, source.shape, sequence_name=Path(source.path).name)
         h, w = source.shape[1:]
@@ -329,7 +337,9 @@ def plot_results(results, source=None, *, suppressed: bool = True, truth=None,
         h, w = int(a["frame_height"]), int(a["frame_width"])
     if scale is None:
         scale = 1.0 if w >= 480 else float(min(4, int(np.ceil(480 / w))))
-    overlay = Overlay.from_tables(found, truth)
+    # the tracker's /tracks summarise its paths: the paths themselves are drawn
+    overlay = Overlay.from_tables({k: v for k, v in found.items()
+                                   if not (tracker and k == "tracks")}, truth)
     background, what = None, "no sequence: dark background"
     if source is not None:
         background = max_projection(source, suppressed=suppressed, config=results.config,
@@ -337,6 +347,14 @@ def plot_results(results, source=None, *, suppressed: bool = True, truth=None,
         what = "max of suppressed frames" if suppressed else "max of raw frames"
     dpi = 100.0
     panel_w, panel_h = max(3.0, scale * w / dpi), max(2.5, scale * h / dpi)
+    if tracker:
+        fig = Figure(figsize=(panel_w + 1.0, panel_h + 1.9), dpi=dpi, layout="constrained")
+        Canvas(fig)
+        ax = fig.subplots()
+        draw_tracks(ax, background, (h, w), overlay, gamma=gamma)
+        n = len(np.unique(overlay.track_points["track_id"]))
+        ax.set_title(f"{what}; {n} tracker tracks", fontsize=9)
+        return fig
     fig = Figure(figsize=(2 * panel_w + 2.6, panel_h + 1.9), dpi=dpi, layout="constrained")
     Canvas(fig)
     left, right = fig.subplots(1, 2, width_ratios=[panel_w, panel_w + 0.6])

@@ -191,3 +191,32 @@ def test_cli_plot_without_the_sequence_and_bad_input(plotted, cli, tmp_path, cap
                        folder / "other.h5")
     assert code == 2 and "another sequence" in err and "Traceback" not in err
     assert not (tmp_path / "x.png").exists() and not (tmp_path / "fig.gif").exists()
+
+
+def test_plot_draws_the_tracker_paths_of_track_results(tmp_path, cli):
+    """The results of irdetect track: one panel, each path in the tracker's colour where
+    its points are, no Hough panel (there are no detections to vote)."""
+    from irdetect.plot import PLOT_COLOURS, plot_results
+    from irdetect.io import open_sequence, read_results
+
+    frames, truth = simulate("wan2008", rng=4, n_frames=40, height=60, width=80,
+                             n_targets=2, snr=10.0, speed=[1.0, 1.0], directions=[10.0, 100.0])
+    write_sequence(tmp_path / "seq.h5", frames, truth=truth)
+    code, _, err = cli("track", "seq.h5", "-o", "t.h5", "-q")
+    assert code == 0, err
+    res = read_results(tmp_path / "t.h5")
+    pts = res["track_points"]
+    assert len(np.unique(pts["track_id"])) == 2
+    with open_sequence(tmp_path / "seq.h5") as src:
+        fig = plot_results(res, src, scale=4)
+    assert len(fig.axes) == 1
+    fig.canvas.draw()
+    img = np.asarray(fig.canvas.buffer_rgba())[..., :3]
+    yellow = _colour_mask(img, PLOT_COLOURS["tracker"])
+    to_fig = fig.axes[0].transData
+    h = img.shape[0]
+    for p in pts[::7]:
+        fx, fy = to_fig.transform((p["x"], p["y"]))
+        assert _near(yellow, fx, h - fy), (p["frame"], p["track_id"])
+    code, _, err = cli("plot", "t.h5", "-o", "t.png")
+    assert code == 0, err

@@ -1,8 +1,8 @@
 """Draw one figure of a results file: the tracks over the max projection of the sequence
 (left, with a legend) and the Hough accumulator of the detections with its candidate cells
 and the subtractive-clustering centres (right, rho and theta axes, a colour bar of the
-votes) -- the picture of peak clustering and its fix. Needs matplotlib
-(pip install irdetect[plot]).
+votes) -- the picture of peak clustering and its fix; for the results of irdetect track,
+the tracker's paths over the max projection. Needs matplotlib (pip install irdetect[plot]).
 
 The sequence is found from the results' input attribute (beside the results file or in
 the current folder) unless given with --sequence. See docs/video.md.
