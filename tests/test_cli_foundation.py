@@ -15,6 +15,18 @@ def test_simulate_then_info(cli):
     assert "20 frames of 320x240" in out and "5 target(s)" in out
 
 
+def test_info_on_results_names_the_settings_that_are_not_the_defaults(cli, tmp_path):
+    assert cli("simulate", "s.h5", "--seed", "1", "--frames", "36", "--size", "64x48")[0] == 0
+    assert cli("process", "s.h5", "-o", "a.h5", "-q")[0] == 0
+    (tmp_path / "c.toml").write_text('[suppress]\nmethod = "temporal"\n'
+                                     '[frame]\nenabled = false\n')
+    assert cli("process", "s.h5", "-o", "b.h5", "-q", "--config", "c.toml")[0] == 0
+    assert "  config: the defaults" in cli("info", "a.h5")[1].splitlines()
+    line = cli("info", "b.h5")[1].splitlines()[-1]
+    assert line == ('  config, where not the defaults: frame.enabled = false (default true), '
+                    'suppress.method = "temporal" (default "auto")')
+
+
 def test_version_and_help(cli, capsys):
     with pytest.raises(SystemExit) as exc:
         cli("--version")

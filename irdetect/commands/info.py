@@ -70,8 +70,32 @@ def _describe_results(path) -> list[str]:
                      f"{res.attrs.get('configured_length', '?')} configured)")
         lines.append(line)
     if "config" in res.attrs:
-        lines.append(f"  config {json.dumps(res.config, sort_keys=True)[:200]}")
+        changed = config_changes(res.config)
+        lines.append("  config: the defaults" if not changed else
+                     f"  config, where not the defaults: {', '.join(changed)}")
     return lines
+
+
+def config_changes(config: dict) -> list[str]:
+    """``section.key = value (default d)`` for each setting of a results file's
+    configuration (JSON, ``to_json``) that differs from ``ProcessConfig()``'s; settings
+    without a default (another release's) are given as they are."""
+    from irdetect.config import ProcessConfig, to_json
+
+    defaults = json.loads(to_json(ProcessConfig()))
+    out = []
+    for section, values in sorted(config.items()):
+        if not isinstance(values, dict):
+            out.append(f"{section} = {json.dumps(values)}")
+            continue
+        known = defaults.get(section, {})
+        for key, value in sorted(values.items()):
+            if key not in known:
+                out.append(f"{section}.{key} = {json.dumps(value)}")
+            elif value != known[key]:
+                out.append(f"{section}.{key} = {json.dumps(value)} "
+                           f"(default {json.dumps(known[key])})")
+    return out
 
 
 def run(args) -> int:
