@@ -549,10 +549,12 @@ def _distinct_tracks(tracks, detections, camera, gate: float, need) -> np.ndarra
     claimed = np.zeros(len(detections), bool)
     for i in order:                     # a loop over the tracks
         mine = cols[bounds[i]:bounds[i + 1]]
-        others = shared.indices[shared.indptr[i]:shared.indptr[i + 1]]
-        both = shared.data[shared.indptr[i]:shared.indptr[i + 1]][kept[others]]
-        if kept.any() and (count[i] == 0 or (~claimed[mine]).sum() < need[i] or (
-                both >= 0.5 * np.minimum(count[i], count[others[kept[others]]])).any()):
+        row = slice(shared.indptr[i], shared.indptr[i + 1])
+        others, both = shared.indices[row], shared.data[row]
+        of_kept = kept[others]
+        claimed_twice = (both[of_kept] >= 0.5 * np.minimum(count[i], count[others[of_kept]]))
+        if kept.any() and (count[i] == 0 or (~claimed[mine]).sum() < need[i]
+                           or claimed_twice.any()):
             continue
         kept[i] = True
         claimed[mine] = True
