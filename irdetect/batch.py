@@ -177,7 +177,8 @@ def expand_inputs(inputs: Iterable[str | os.PathLike]) -> list[Path]:
             if m.is_dir() and not is_image_folder(m):
                 members = _folder_sequences(m)
                 if not members and len(matches) == 1:
-                    raise InputError("folder holds no sequence (HDF5, video, .npy, .mat or a folder "
+                    raise InputError("folder holds no sequence (HDF5, video, .npy, .mat or a "
+                                     "folder "
                                      "of images)", m)
                 found.extend(members)
             elif not _is_results(m):

@@ -37,7 +37,8 @@ WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EACCES, errno.EPE
 COMMANDS = [
     ("process", "process", "detect dim point targets in a sequence and initiate their tracks"),
     ("simulate", "simulate", "write a synthetic IR sequence with ground truth"),
-    ("convert", "convert", "convert a sequence (HDF5, image folder, TIFF stack, video, .npy, .mat) to HDF5"),
+    ("convert", "convert", "convert a sequence (HDF5, image folder, TIFF stack, video, .npy, "
+     ".mat) to HDF5"),
     ("info", "info", "say what a sequence, scans or results file holds"),
     ("evaluate", "evaluate", "score a results file against ground truth"),
     ("video", "video", "write an annotated video (.mp4, .avi or PNG frames) of a sequence and its results"),

@@ -1,6 +1,5 @@
 """Convert any readable sequence (HDF5, folder of images, multi-page TIFF, video, .npy,
-MAT-file) to
-the HDF5 contract.
+MAT-file) to the HDF5 contract.
 
 With --truth, a point annotation file (one 'x y' line per frame, x = column, y = row,
 0-based; the format of shared/data/real/*/truth.txt) is imported as /truth.
@@ -12,6 +11,7 @@ import logging
 
 from tqdm import tqdm
 
+from irdetect.commands import DATASET_HELP, SEQUENCE_KINDS
 from irdetect.errors import InputError
 from irdetect.io import check_output_path, open_sequence, read_point_annotations, write_sequence
 from irdetect.io.sources import check_values
@@ -20,11 +20,10 @@ log = logging.getLogger(__name__)
 
 
 def add_arguments(p):
-    p.add_argument("input", help="HDF5 file, folder of images, multi-page TIFF, video file, .npy or "
-                   "MATLAB .mat")
+    p.add_argument("input", help=SEQUENCE_KINDS)
     p.add_argument("-o", "--output", required=True, help="HDF5 file to write")
     p.add_argument("--truth", help="point annotation file, one 'x y' line per frame")
-    p.add_argument("--dataset", help="HDF5 input: dataset path (default /frames); MAT-file: variable name")
+    p.add_argument("--dataset", help=DATASET_HELP)
     p.add_argument("--frame-rate", type=float, help="frames per second to record")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
 

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import h5py
 
+from irdetect.commands import DATASET_HELP, SEQUENCE_KINDS
 from irdetect.errors import InputError, check_input_file
 from irdetect.io import open_sequence, read_results
 
@@ -14,9 +15,8 @@ RESULT_TABLES = ("detections", "candidates", "segments", "tracks", "track_points
 
 
 def add_arguments(p):
-    p.add_argument("file", help="sequence (HDF5, image folder, multi-page TIFF, video, .npy, .mat), "
-                   "scans or results")
-    p.add_argument("--dataset", help="HDF5 sequence: dataset path (default /frames); MAT-file: variable name")
+    p.add_argument("file", help=f"sequence ({SEQUENCE_KINDS}), scans or results")
+    p.add_argument("--dataset", help=DATASET_HELP)
 
 
 def describe(path, dataset=None) -> list[str]:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
+from irdetect.commands import DATASET_HELP
 from irdetect.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -25,7 +26,7 @@ def add_arguments(p):
                    help="figure file (.png, .jpg, .tif, .pdf or .svg)")
     p.add_argument("--sequence", help="the sequence the results were made from (default: "
                    "the results' input attribute, looked up beside the results file)")
-    p.add_argument("--dataset", help="HDF5 sequence: dataset path (default /frames); MAT-file: variable name")
+    p.add_argument("--dataset", help=DATASET_HELP)
     p.add_argument("--raw", action="store_true",
                    help="max projection of the raw frames (default: of the suppressed frames)")
     p.add_argument("--truth", nargs="?", const=True, default=None, metavar="FILE",

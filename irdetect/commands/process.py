@@ -19,6 +19,7 @@ import logging
 import os
 from pathlib import Path
 
+from irdetect.commands import DATASET_HELP, SEQUENCE_KINDS
 from irdetect.batch import SCHEDULER_ENV, expand_inputs, is_image_folder, output_name
 from irdetect.profiles import load_profile, profile_names
 from irdetect.commands.video import add_style_arguments as add_video_arguments
@@ -34,8 +35,8 @@ DEFAULT_THREADS = 2
 
 def add_arguments(p):
     p.add_argument("inputs", nargs="+", metavar="INPUT",
-                   help="sequence: HDF5 file, folder of images, multi-page TIFF, video file, "
-                   ".npy or .mat; several inputs, folders of sequences or glob patterns with --out-dir")
+                   help=f"sequence: {SEQUENCE_KINDS}; several inputs, folders of sequences "
+                   "or glob patterns with --out-dir")
     p.add_argument("-o", "--output",
                    help="results file of a single input (default: INPUT_NAME.irdetect.h5 in "
                    "the current folder)")
@@ -58,7 +59,7 @@ def add_arguments(p):
                    help=f"single input: threads over windows (default {DEFAULT_THREADS}: the "
                    "correlation of each window triple runs beside the next windows' front "
                    "end); the results do not depend on it")
-    p.add_argument("--dataset", help="HDF5 input: dataset path (default /frames); MAT-file: variable name")
+    p.add_argument("--dataset", help=DATASET_HELP)
     p.add_argument("--force", action="store_true",
                    help="overwrite an existing output (batch: redo finished inputs)")
     p.add_argument("--video", metavar="OUT", help="single input: also write the annotated "

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from irdetect.commands import DATASET_HELP, SEQUENCE_KINDS
 from irdetect.config import to_json
 from irdetect.profiles import load_profile
 from irdetect.errors import refused_settings
@@ -31,8 +32,7 @@ log = logging.getLogger(__name__)
 
 
 def add_arguments(p):
-    p.add_argument("input", help="sequence: HDF5 file, folder of images, "
-                            "multi-page TIFF, video file, .npy or .mat")
+    p.add_argument("input", help=f"sequence: {SEQUENCE_KINDS}")
     p.add_argument("-o", "--output",
                    help="results file (default: INPUT_NAME.track.h5 in the current folder)")
     p.add_argument("--config", help="TOML file; its [track] table sets the tracker (docs/tracking.md)")
@@ -46,7 +46,7 @@ def add_arguments(p):
                    help="FCM + adaptive PMHT (default) or the CV Kalman + GNN baseline")
     p.add_argument("--sea-sky", action="store_true", default=None,
                    help="maritime scene: search only near the sea-sky line")
-    p.add_argument("--dataset", help="HDF5 input: dataset path (default /frames); MAT-file: variable name")
+    p.add_argument("--dataset", help=DATASET_HELP)
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
 
 

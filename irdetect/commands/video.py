@@ -12,17 +12,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from irdetect.commands import DATASET_HELP, SEQUENCE_KINDS
 from irdetect.errors import InputError
 
 
 def add_arguments(p, *, standalone: bool = True):
     if standalone:
-        p.add_argument("input", help="sequence: HDF5 file, folder of images, "
-                                "multi-page TIFF, video file, .npy or .mat")
+        p.add_argument("input", help=f"sequence: {SEQUENCE_KINDS}")
         p.add_argument("results", help="results file of irdetect process (or track)")
         p.add_argument("-o", "--output", required=True,
                        help="out.mp4, out.avi, or a folder name (no suffix) for PNG frames")
-        p.add_argument("--dataset", help="HDF5 input: dataset path (default /frames); MAT-file: variable name")
+        p.add_argument("--dataset", help=DATASET_HELP)
         p.add_argument("--force", action="store_true", help="overwrite an existing output")
     add_style_arguments(p)
 

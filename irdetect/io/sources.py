@@ -3,8 +3,9 @@
 ``open_sequence(path)`` picks the reader from the path: an HDF5 file, a folder of images
 (PNG / TIFF / BMP, 8 or 16 bit, natural sort), a multi-page TIFF or OME-TIFF stack
 (``tifffile``, the ``tiff`` extra), a video file (OpenCV), a ``.npy`` file
-(memory-mapped) or a MATLAB MAT-file (an H x W x T variable). Every reader is a :class:`FrameSource`: frames of shape (H, W), sliced
-as ``src[a:b]`` -> ndarray of shape (b - a, H, W) in the file's dtype.
+(memory-mapped) or a MATLAB MAT-file (an H x W x T variable). Every reader is a
+:class:`FrameSource`: frames of shape (H, W), sliced as ``src[a:b]`` -> ndarray of shape
+(b - a, H, W) in the file's dtype.
 """
 
 from __future__ import annotations
