@@ -64,3 +64,54 @@ def test_no_truth_is_the_same_line_for_every_command(recording, cli, tmp_path):
         code, _, err = cli(*argv)
         assert code == 2, (argv, err)
         assert err.strip().endswith(NO_TRUTH) and len(err.strip().splitlines()) == 1, err
+
+
+def _write_masks(folder, truth, shape, radius=1):
+    """One 8-bit mask per frame: a filled disc of ``radius`` px on each true position."""
+    folder.mkdir()
+    for f in range(int(truth["frame"].max()) + 1):
+        mask = np.zeros(shape, np.uint8)
+        for r in truth[truth["frame"] == f]:
+            cv2.circle(mask, (int(round(r["x"])), int(round(r["y"]))), radius, 255, -1)
+        assert cv2.imwrite(str(folder / f"mask_{f}.png"), mask)      # natural order: 2 < 10
+
+
+def test_a_folder_of_target_masks_is_truth(tmp_path, cli):
+    """IRSTD datasets annotate targets as masks: each region of a mask is a target at its
+    centroid, linked to the nearest of the frame before; evaluate and convert take the
+    folder as --truth."""
+    from irdetect.io.truth import read_mask_folder
+
+    frames, truth = simulate("wan2008", rng=3, n_frames=36, height=48, width=64,
+                             n_targets=2, snr=8.0, directions=[0.0, 180.0], dtype="uint8",
+                             margin=6.0)
+    _write_masks(tmp_path / "masks", truth, frames.shape[1:])
+    got = read_mask_folder(tmp_path / "masks", 36)
+    assert len(got) == len(truth) and len(np.unique(got["target"])) == 2
+    for t in np.unique(got["target"]):            # each linked target is one true target
+        rows = got[got["target"] == t]
+        true = truth[(truth["frame"] == rows["frame"][0])]
+        k = np.argmin(np.hypot(true["x"] - rows["x"][0], true["y"] - rows["y"][0]))
+        want = truth[truth["target"] == true["target"][k]]
+        np.testing.assert_allclose(rows["x"], np.round(want["x"]), atol=1e-6)
+        np.testing.assert_allclose(rows["y"], np.round(want["y"]), atol=1e-6)
+    write_sequence(tmp_path / "seq.h5", frames)
+    assert cli("process", "seq.h5", "-o", "r.h5", "-q")[0] == 0
+    code, out, err = cli("evaluate", "r.h5", "--truth", "masks", "--json")
+    assert code == 0, err
+    import json
+    assert json.loads(out)["detection"]["targets"] == 6          # 2 targets x 3 windows
+    code, _, err = cli("convert", "seq.h5", "-o", "with_truth.h5", "--truth", "masks")
+    assert code == 0, err
+    with open_sequence(tmp_path / "with_truth.h5") as src:
+        for name in ("frame", "target", "x", "y"):
+            np.testing.assert_array_equal(src.truth[name], got[name])
+    # the count must match, and frames are not masks
+    (tmp_path / "masks" / "mask_35.png").unlink()
+    code, _, err = cli("evaluate", "r.h5", "--truth", "masks")
+    assert code == 2 and "35 masks for 36 frames" in err
+    (tmp_path / "frames").mkdir()
+    for i, frame in enumerate(frames):
+        cv2.imwrite(str(tmp_path / "frames" / f"{i}.png"), frame)
+    code, _, err = cli("evaluate", "r.h5", "--truth", "frames")
+    assert code == 2 and NO_TRUTH in err and "not a target mask" in err

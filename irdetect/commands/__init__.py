@@ -5,3 +5,6 @@ SEQUENCE_KINDS = "HDF5 file, folder of images, multi-page TIFF, video file, .npy
 #: the help of every ``--dataset``
 DATASET_HELP = (
     "HDF5: dataset path (default /frames); MAT-file: variable (default: its only 3-D one)")
+#: what ``--truth FILE`` may name (``irdetect.io.find_truth``)
+TRUTH_KINDS = ("a sequence with /truth, a text file of 'x y' per frame, a recording folder, "
+               "or a folder of target masks")

@@ -2,7 +2,8 @@
 MAT-file) to the HDF5 contract.
 
 With --truth, a point annotation file (one 'x y' line per frame, x = column, y = row,
-0-based; the format of shared/data/real/*/truth.txt) is imported as /truth.
+0-based; the format of shared/data/real/*/truth.txt) or a folder of target masks (one
+binary image per frame, each region a target at its centroid) is imported as /truth.
 """
 
 from __future__ import annotations
@@ -13,8 +14,9 @@ from tqdm import tqdm
 
 from irdetect.commands import DATASET_HELP, SEQUENCE_KINDS
 from irdetect.errors import InputError
-from irdetect.io import check_output_path, open_sequence, read_point_annotations, write_sequence
+from irdetect.io import check_output_path, open_sequence, write_sequence
 from irdetect.io.sources import check_values
+from irdetect.io.truth import find_truth
 
 log = logging.getLogger(__name__)
 
@@ -22,7 +24,8 @@ log = logging.getLogger(__name__)
 def add_arguments(p):
     p.add_argument("input", help=SEQUENCE_KINDS)
     p.add_argument("-o", "--output", required=True, help="HDF5 file to write")
-    p.add_argument("--truth", help="point annotation file, one 'x y' line per frame")
+    p.add_argument("--truth", help="point annotation file, one 'x y' line per frame, or a "
+                   "folder of target masks, one binary image per frame")
     p.add_argument("--dataset", help=DATASET_HELP)
     p.add_argument("--frame-rate", type=float, help="frames per second to record")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
@@ -34,7 +37,7 @@ def run(args) -> int:
     inputs = (args.input, args.truth)
     with open_sequence(args.input, args.dataset) as src:     # a missing input is said first
         check_output_path(args.output, args.force, inputs)
-        truth = (read_point_annotations(args.truth, len(src)) if args.truth else src.truth)
+        truth = (find_truth(args.truth, n_frames=len(src)).table if args.truth else src.truth)
         bar = tqdm(total=len(src), unit="frame", disable=not args.progress, desc="convert")
 
         def blocks():

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from irdetect import tables
+from irdetect.commands import TRUTH_KINDS
 from irdetect.errors import InputError
 from irdetect.io import read_results
 
@@ -41,9 +42,8 @@ def add_arguments(p):
     p.formatter_class = argparse.RawDescriptionHelpFormatter    # keep the list above as is
     p.add_argument("results", help="results file of irdetect process, track or initiate")
     p.add_argument("--truth", metavar="FILE",
-                   help="a sequence with /truth, a text file of 'x y' per frame, or a "
-                   "recording folder (default: the results' input sequence: its /truth or "
-                   "its recording folder's truth.txt)")
+                   help=f"{TRUTH_KINDS} (default: the results' input sequence: its /truth "
+                   "or its recording folder's truth.txt)")
     p.add_argument("--gate", type=float, default=3.0,
                    help="match distance in px between a detection and the true path (3)")
     p.add_argument("--json", action="store_true", help="print the scores as JSON")

@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-from irdetect.commands import DATASET_HELP
+from irdetect.commands import DATASET_HELP, TRUTH_KINDS
 from irdetect.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -31,8 +31,7 @@ def add_arguments(p):
                    help="max projection of the raw frames (default: of the suppressed frames)")
     p.add_argument("--truth", nargs="?", const=True, default=None, metavar="FILE",
                    help="draw ground truth: alone, the sequence's /truth or its recording "
-                   "folder's truth.txt; or FILE (a sequence with /truth, a text file of "
-                   "'x y' per frame, or a recording folder)")
+                   f"folder's truth.txt; or FILE ({TRUTH_KINDS})")
     p.add_argument("--scale", type=float, help="figure pixels per source pixel (default: "
                    "enough for 480 px width, at most 4)")
     p.add_argument("--gamma", type=float, default=1.0, help="display gamma (default 1)")

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from irdetect.commands import DATASET_HELP, SEQUENCE_KINDS
+from irdetect.commands import DATASET_HELP, SEQUENCE_KINDS, TRUTH_KINDS
 from irdetect.errors import InputError
 
 
@@ -37,8 +37,7 @@ def add_style_arguments(p):
     g.add_argument("--every", type=int, default=1, metavar="N", help="write every N-th frame")
     g.add_argument("--truth", nargs="?", const=True, default=None, metavar="FILE",
                    help="draw ground truth in green: alone, the sequence's /truth or its "
-                   "recording folder's truth.txt; or FILE (a sequence with /truth, a text "
-                   "file of 'x y' per frame, or a recording folder)")
+                   f"recording folder's truth.txt; or FILE ({TRUTH_KINDS})")
     g.add_argument("--candidates", action="store_true",
                    help="also draw unconfirmed candidates (small grey crosses)")
     g.add_argument("--panels", action="store_true",
