@@ -466,7 +466,8 @@ def test_truncated_files_at_random_offsets(made, tmp_path, fraction, which):
 
 
 @settings(suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(data=st.binary(max_size=400), suffix=st.sampled_from([".npy", ".h5", ".mp4", ".toml"]))
+@given(data=st.binary(max_size=400),
+       suffix=st.sampled_from([".npy", ".h5", ".mp4", ".toml", ".mat"]))
 def test_random_bytes(tmp_path, data, suffix):
     from irdetect.config import load_config
 
