@@ -115,3 +115,18 @@ def test_a_folder_of_target_masks_is_truth(tmp_path, cli):
         cv2.imwrite(str(tmp_path / "frames" / f"{i}.png"), frame)
     code, _, err = cli("evaluate", "r.h5", "--truth", "frames")
     assert code == 2 and NO_TRUTH in err and "not a target mask" in err
+
+
+def test_empty_masks_are_frames_without_a_target(tmp_path):
+    from irdetect import tables
+    from irdetect.io.truth import read_mask_folder
+
+    (tmp_path / "m").mkdir()
+    for f in range(3):
+        cv2.imwrite(str(tmp_path / "m" / f"{f}.png"), np.zeros((8, 9), np.uint8))
+    mask = np.zeros((8, 9), np.uint8)
+    mask[3:5, 3:5] = 255                                    # a 2 x 2 px target
+    cv2.imwrite(str(tmp_path / "m" / "3.png"), mask)
+    got = read_mask_folder(tmp_path / "m", 4)
+    assert got.dtype == tables.TRUTH and got[["frame", "target"]].tolist() == [(3, 0)]
+    np.testing.assert_allclose([got["x"][0], got["y"][0]], [3.5, 3.5])

@@ -173,8 +173,8 @@ def read_mask_folder(folder: str | os.PathLike, n_frames: int | None = None) -> 
                                  "not a target mask)", folder)
             raise InputError(f"{file.name} is not a target mask (more than two values)",
                              folder)
-        n, _, _, centres = cv2.connectedComponentsWithStats((image > 0).astype(np.uint8),
-                                                            connectivity=8)
+        centres = cv2.connectedComponentsWithStats((image > 0).astype(np.uint8),
+                                                   connectivity=8)[3]
         xy = centres[1:]                                   # label 0 is the background
         ids = np.full(len(xy), -1)
         if len(xy) and len(last):
@@ -185,9 +185,9 @@ def read_mask_folder(folder: str | os.PathLike, n_frames: int | None = None) -> 
         new = ids < 0
         ids[new] = np.arange(next_id, next_id + new.sum())
         next_id += int(new.sum())
-        rows += [(f, int(i), float(x), float(y)) for i, (x, y) in zip(ids, xy)]
+        rows.append(np.column_stack([np.full(len(xy), f), ids, xy]))
         last, last_ids = xy, ids
-    frame, target, x, y = (np.array(c) for c in zip(*rows)) if rows else ([],) * 4
-    out = tables.from_columns(tables.TRUTH, frame=frame, target=target, x=x, y=y,
-                              n=None if rows else 0)
+    rows = np.concatenate(rows)                            # (frame, target, x, y)
+    out = tables.from_columns(tables.TRUTH, frame=rows[:, 0].astype(np.int64),
+                              target=rows[:, 1].astype(np.int64), x=rows[:, 2], y=rows[:, 3])
     return out[np.lexsort((out["target"], out["frame"]))]
