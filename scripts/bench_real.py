@@ -436,6 +436,7 @@ def picture(name: str, t: int, centre=None) -> Path:
     frames, truth = load(REAL / name)
     cfg = ProcessConfig()
     sup = {k: getattr(cfg.suppress, k) for k in cfg.suppress.__dataclass_fields__}
+    sup.pop("long_memory")              # the pipeline's, not the suppressor's (off: 0)
     keep = past_frames(**sup)
     # t's whole window, as the pipeline suppresses it (``auto`` decides per window; the
     # first frames look ahead, ``suppress.lead_in``)
