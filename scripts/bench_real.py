@@ -431,12 +431,12 @@ def picture(name: str, t: int, centre=None) -> Path:
     """Side by side at 2x: frame t (1-99.8 % stretch) and its residual under the default
     suppressor, 128 x 128 px around the truth (or ``centre`` (x, y)); green circle =
     truth, red = confirmed detections of t's window."""
+    from irdetect.pipeline.combined import StageParams
     from irdetect.suppress import future_frames, past_frames, suppress
 
     frames, truth = load(REAL / name)
     cfg = ProcessConfig()
-    sup = {k: getattr(cfg.suppress, k) for k in cfg.suppress.__dataclass_fields__}
-    sup.pop("long_memory")              # the pipeline's, not the suppressor's (off: 0)
+    sup = StageParams(cfg).suppress     # the suppressor's keywords, as the pipeline's
     keep = past_frames(**sup)
     # t's whole window, as the pipeline suppresses it (``auto`` decides per window; the
     # first frames look ahead, ``suppress.lead_in``)
