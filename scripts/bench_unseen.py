@@ -504,32 +504,60 @@ def totals(scenes: list[dict]) -> dict:
 FALSE_BEFORE = 0.023
 
 
-def goal(scenes: list[dict]) -> str:
-    """The goal on a stratum (issue 26): "✓", "✗", or "–" (nothing to judge).
+def goal_parts(scenes: list[dict]) -> list[tuple[str, bool, list[dict]]]:
+    """The goal's parts on a stratum (issue 26): (what, met, the scenes of that part).
 
     Its SNR >= 5 scenes need Pd >= 0.9 and never below the top-hat peak's hit rate minus
     0.05, its SNR 4-5 scenes Pd >= 0.9, its SNR 3-4 scenes Pd >= 0.8, and all of them at
     most ``FALSE_BEFORE`` false detections per frame (each part judged only when it has
     target-windows, resp. frames).
     """
-    verdicts = []
-    high = totals([s for s in scenes if s["snr"] >= 5])
-    mid = totals([s for s in scenes if 4 <= s["snr"] < 5])
-    low = totals([s for s in scenes if s["snr"] < 4])
-    every = totals(scenes)
-    if high["targets"]:
-        verdicts.append(high["pd"] >= 0.9)
-        if high["peak_frames"]:
-            verdicts.append(high["pd"] >= high["peak"] - 0.05)
-    if mid["targets"]:
-        verdicts.append(mid["pd"] >= 0.9)
-    if low["targets"]:
-        verdicts.append(low["pd"] >= 0.8)
+    parts = []
+    high = [s for s in scenes if s["snr"] >= 5]
+    mid = [s for s in scenes if 4 <= s["snr"] < 5]
+    low = [s for s in scenes if s["snr"] < 4]
+    t_high, t_mid, t_low, every = totals(high), totals(mid), totals(low), totals(scenes)
+    if t_high["targets"]:
+        parts.append((f"SNR >= 5 needs Pd >= 0.9, has {fmt(t_high['pd'])}",
+                      t_high["pd"] >= 0.9, high))
+        if t_high["peak_frames"]:
+            parts.append((f"SNR >= 5 needs Pd >= the top-hat peak's {fmt(t_high['peak'])} "
+                          f"- 0.05, has {fmt(t_high['pd'])}",
+                          t_high["pd"] >= t_high["peak"] - 0.05, high))
+    if t_mid["targets"]:
+        parts.append((f"SNR 4-5 needs Pd >= 0.9, has {fmt(t_mid['pd'])}", t_mid["pd"] >= 0.9, mid))
+    if t_low["targets"]:
+        parts.append((f"SNR 3-4 needs Pd >= 0.8, has {fmt(t_low['pd'])}", t_low["pd"] >= 0.8, low))
     if every["frames"]:
-        verdicts.append(every["false_per_frame"] <= FALSE_BEFORE)
-    if not verdicts:
+        parts.append((f"false / frame must be <= {FALSE_BEFORE}, is "
+                      f"{fmt(every['false_per_frame'], 3)}",
+                      every["false_per_frame"] <= FALSE_BEFORE, scenes))
+    return parts
+
+
+def goal(scenes: list[dict]) -> str:
+    """The goal on a stratum (``goal_parts``): "✓", "✗", or "–" (nothing to judge)."""
+    parts = goal_parts(scenes)
+    if not parts:
         return "–"
-    return "✓" if all(verdicts) else "✗"
+    return "✓" if all(met for _, met, _ in parts) else "✗"
+
+
+def missed_parts(rows) -> list[str]:
+    """One line per stratum below the goal: its unmet parts and, for a Pd part, the scenes
+    of that part whose own Pd is below the part's (index and Pd, lowest first)."""
+    lines = []
+    for group, label, sc in rows:
+        for what, met, part in goal_parts(sc) if sc else []:
+            if met:
+                continue
+            worst = sorted((s for s in part if s["targets"]),
+                           key=lambda s: s["detected"] / s["targets"])
+            low = [f"{s['index']} ({s['detected']}/{s['targets']})" for s in worst
+                   if s["detected"] / s["targets"] < 0.9][:5]
+            lines.append(f"- {group} {label}: {what}" +
+                         (f"; lowest scenes: {', '.join(low)}" if "Pd" in what and low else ""))
+    return lines
 
 
 def strata(scenes: list[dict]) -> list[tuple[str, str, list[dict]]]:
@@ -774,6 +802,10 @@ def write_report(path: Path, scenes: list[dict], args, total: float) -> None:
                      f"{fmt(t['peak'])} | {fmt(t['roc_auc'])} | {goal(sc)} | {fmt(t['false_per_frame'], 3)} | {fmt(t['pt'])} "
                      f"({t['pt_followed']}/{t['pt_targets']}) | {fmt(t['pc'])} "
                      f"({t['tracks_false']}/{t['tracks']}) |")
+    missed = missed_parts(rows)
+    if missed:
+        lines += ["", "Below the goal (the part not met; the lowest scenes of that part, as "
+                  "scene (target-windows found / counted)):", ""] + missed
     lines += ["", "## Scenes", "",
               "speed and pan in px/frame, jitter in px, psf = PSF sigma px; Pd over counted "
               "target-windows; tracks false = false / all tracks; camera err = RMS over frames of "
