@@ -505,7 +505,8 @@ FALSE_BEFORE = 0.023
 
 
 def goal_parts(scenes: list[dict]) -> list[tuple[str, bool, list[dict]]]:
-    """The goal's parts on a stratum (issue 26): (what, met, the scenes of that part).
+    """The goal's parts on a stratum (issue 26): (what, met, the scenes whose Pd the part
+    judges; none for the false rate).
 
     Its SNR >= 5 scenes need Pd >= 0.9 and never below the top-hat peak's hit rate minus
     0.05, its SNR 4-5 scenes Pd >= 0.9, its SNR 3-4 scenes Pd >= 0.8, and all of them at
@@ -525,13 +526,15 @@ def goal_parts(scenes: list[dict]) -> list[tuple[str, bool, list[dict]]]:
                           f"- 0.05, has {fmt(t_high['pd'])}",
                           t_high["pd"] >= t_high["peak"] - 0.05, high))
     if t_mid["targets"]:
-        parts.append((f"SNR 4-5 needs Pd >= 0.9, has {fmt(t_mid['pd'])}", t_mid["pd"] >= 0.9, mid))
+        parts.append((f"SNR 4-5 needs Pd >= 0.9, has {fmt(t_mid['pd'])}",
+                      t_mid["pd"] >= 0.9, mid))
     if t_low["targets"]:
-        parts.append((f"SNR 3-4 needs Pd >= 0.8, has {fmt(t_low['pd'])}", t_low["pd"] >= 0.8, low))
+        parts.append((f"SNR 3-4 needs Pd >= 0.8, has {fmt(t_low['pd'])}",
+                      t_low["pd"] >= 0.8, low))
     if every["frames"]:
         parts.append((f"false / frame must be <= {FALSE_BEFORE}, is "
                       f"{fmt(every['false_per_frame'], 3)}",
-                      every["false_per_frame"] <= FALSE_BEFORE, scenes))
+                      every["false_per_frame"] <= FALSE_BEFORE, []))
     return parts
 
 
@@ -544,8 +547,8 @@ def goal(scenes: list[dict]) -> str:
 
 
 def missed_parts(rows) -> list[str]:
-    """One line per stratum below the goal: its unmet parts and, for a Pd part, the scenes
-    of that part whose own Pd is below the part's (index and Pd, lowest first)."""
+    """One line per unmet part of a stratum's goal, with that part's scenes of Pd under
+    0.9 (index and target-windows found / counted, lowest first, at most 5)."""
     lines = []
     for group, label, sc in rows:
         for what, met, part in goal_parts(sc) if sc else []:
@@ -556,7 +559,7 @@ def missed_parts(rows) -> list[str]:
             low = [f"{s['index']} ({s['detected']}/{s['targets']})" for s in worst
                    if s["detected"] / s["targets"] < 0.9][:5]
             lines.append(f"- {group} {label}: {what}" +
-                         (f"; lowest scenes: {', '.join(low)}" if "Pd" in what and low else ""))
+                         (f"; lowest scenes: {', '.join(low)}" if low else ""))
     return lines
 
 
