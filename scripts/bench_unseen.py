@@ -504,6 +504,12 @@ def totals(scenes: list[dict]) -> dict:
 FALSE_BEFORE = 0.023
 
 
+#: the goal's Pd parts (issue 26): (label, SNR from, SNR below, Pd needed); the first also
+#: needs Pd >= the top-hat peak's hit rate - 0.05
+PD_BANDS = (("SNR >= 5", 5.0, np.inf, 0.9), ("SNR 4-5", 4.0, 5.0, 0.9),
+            ("SNR 3-4", -np.inf, 4.0, 0.8))
+
+
 def goal_parts(scenes: list[dict]) -> list[tuple[str, bool, list[dict]]]:
     """The goal's parts on a stratum (issue 26): (what, met, the scenes whose Pd the part
     judges; none for the false rate).
@@ -514,23 +520,16 @@ def goal_parts(scenes: list[dict]) -> list[tuple[str, bool, list[dict]]]:
     target-windows, resp. frames).
     """
     parts = []
-    high = [s for s in scenes if s["snr"] >= 5]
-    mid = [s for s in scenes if 4 <= s["snr"] < 5]
-    low = [s for s in scenes if s["snr"] < 4]
-    t_high, t_mid, t_low, every = totals(high), totals(mid), totals(low), totals(scenes)
-    if t_high["targets"]:
-        parts.append((f"SNR >= 5 needs Pd >= 0.9, has {fmt(t_high['pd'])}",
-                      t_high["pd"] >= 0.9, high))
-        if t_high["peak_frames"]:
-            parts.append((f"SNR >= 5 needs Pd >= the top-hat peak's {fmt(t_high['peak'])} "
-                          f"- 0.05, has {fmt(t_high['pd'])}",
-                          t_high["pd"] >= t_high["peak"] - 0.05, high))
-    if t_mid["targets"]:
-        parts.append((f"SNR 4-5 needs Pd >= 0.9, has {fmt(t_mid['pd'])}",
-                      t_mid["pd"] >= 0.9, mid))
-    if t_low["targets"]:
-        parts.append((f"SNR 3-4 needs Pd >= 0.8, has {fmt(t_low['pd'])}",
-                      t_low["pd"] >= 0.8, low))
+    for label, lo, hi, need in PD_BANDS:
+        band = [s for s in scenes if lo <= s["snr"] < hi]
+        t = totals(band)
+        if not t["targets"]:
+            continue
+        parts.append((f"{label} needs Pd >= {need}, has {fmt(t['pd'])}", t["pd"] >= need, band))
+        if lo >= 5 and t["peak_frames"]:
+            parts.append((f"{label} needs Pd >= the top-hat peak's {fmt(t['peak'])} - 0.05, "
+                          f"has {fmt(t['pd'])}", t["pd"] >= t["peak"] - 0.05, band))
+    every = totals(scenes)
     if every["frames"]:
         parts.append((f"false / frame must be <= {FALSE_BEFORE}, is "
                       f"{fmt(every['false_per_frame'], 3)}",
