@@ -41,6 +41,9 @@ class SuppressConfig:
     fixed_pattern: bool = True
     samples: int = 3
     lead_in: str = "future"
+    #: "bright": targets brighter than their background (white-hot); "dark": darker
+    #: (a black-hot recording, a cold target): the frames are mirrored in grey level
+    polarity: str = "bright"
     #: the first frames of this many earlier windows are the long-memory background of
     #: a still camera (``suppress(long_past=)``: a target that stops stays detected;
     #: 0: off, the default: docs/detection.md says what it costs the tracks)

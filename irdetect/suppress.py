@@ -53,12 +53,15 @@ from irdetect.robust import median_mad_sigma, sorted_median, tile_map, tile_samp
 
 METHODS = ("tophat", "maxmean", "maxmedian", "temporal", "registered", "auto", "none")
 LEAD_INS = ("future", "tophat")
+#: targets brighter than their background (a white-hot recording) or darker (black-hot,
+#: or a target colder than what lies behind it)
+POLARITIES = ("bright", "dark")
 
 
 def suppress(frames, previous=None, following=None, camera=None, long_past=None, *,
              method: str = "auto", size: int = 9, guard: int = 1, history: int = 12,
              gap: int = 8, tolerance: int = 1, fixed_pattern: bool = True, samples: int = 3,
-             lead_in: str = "future") -> np.ndarray:
+             lead_in: str = "future", polarity: str = "bright") -> np.ndarray:
     """Suppress the background of one frame or a stack of frames.
 
     Parameters
@@ -112,6 +115,11 @@ def suppress(frames, previous=None, following=None, camera=None, long_past=None,
         before ``frames`` (the pipeline passes the first frames of the earlier windows,
         ``ProcessConfig.suppress.long_memory``); a point that arrived and stays keeps
         its residual against their median (see Notes).
+    polarity : {"bright", "dark"}
+        Targets brighter than their background (``bright``: a white-hot recording) or
+        darker (``dark``: black-hot, or a target colder than its background): every
+        frame given is mirrored in grey level first (``bright_up``), so a dark target's
+        residual is positive as a bright one's is.
 
     Returns
     -------
@@ -175,6 +183,11 @@ def suppress(frames, previous=None, following=None, camera=None, long_past=None,
         raise ValueError(f"samples must be an integer >= 1, got {samples!r}")
     if lead_in not in LEAD_INS:
         raise ValueError(f"lead_in must be one of {LEAD_INS}, got {lead_in!r}")
+    if polarity not in POLARITIES:
+        raise ValueError(f"polarity must be one of {POLARITIES}, got {polarity!r}")
+    if polarity == "dark":
+        frames, previous, following, long_past = (
+            None if a is None else bright_up(a) for a in (frames, previous, following, long_past))
     arr = np.asarray(frames)
     if arr.ndim not in (2, 3) or arr.shape[-1] == 0 or arr.shape[-2] == 0:
         raise ValueError(f"frames must have shape (H, W) or (T, H, W), got {arr.shape}")
@@ -247,6 +260,18 @@ def suppress(frames, previous=None, following=None, camera=None, long_past=None,
         for t in range(len(stack)):
             out[t] = kernel(stack[t], int(size), int(guard))
     return out[0] if single else out
+
+
+def bright_up(frames) -> np.ndarray:
+    """Frames mirrored in grey level, so that dark targets become bright ones.
+
+    Integer frames take the bitwise not (``max - v`` for unsigned types, ``-1 - v`` for
+    signed ones): exact, in the same dtype, and its own inverse, so a black-hot recording
+    of integer frames gives back the white-hot one value for value. Float frames are
+    negated. Any shape; returns a new array.
+    """
+    a = np.asarray(frames)
+    return np.invert(a) if a.dtype.kind in "biu" else np.negative(a)
 
 
 #: ``auto`` with a moving camera: the registered background is taken when its residual's

@@ -19,7 +19,7 @@ import logging
 import os
 from pathlib import Path
 
-from irdetect.commands import DATASET_HELP, SEQUENCE_KINDS
+from irdetect.commands import DATASET_HELP, POLARITY_HELP, SEQUENCE_KINDS, with_polarity
 from irdetect.batch import SCHEDULER_ENV, expand_inputs, is_image_folder, output_name
 from irdetect.profiles import load_profile, profile_names
 from irdetect.commands.video import add_style_arguments as add_video_arguments
@@ -60,6 +60,7 @@ def add_arguments(p):
                    "correlation of each window triple runs beside the next windows' front "
                    "end); the results do not depend on it")
     p.add_argument("--dataset", help=DATASET_HELP)
+    p.add_argument("--polarity", choices=["bright", "dark"], help=POLARITY_HELP)
     p.add_argument("--force", action="store_true",
                    help="overwrite an existing output (batch: redo finished inputs)")
     p.add_argument("--video", metavar="OUT", help="single input: also write the annotated "
@@ -70,7 +71,7 @@ def add_arguments(p):
 def run(args) -> int:
     from irdetect.pipeline import check_config, process_file
 
-    config = load_profile(args.profile, args.config)
+    config = with_polarity(load_profile(args.profile, args.config), args.polarity)
     check_config(config, args.config)         # a bad value fails now, not mid-run
     if args.video and _is_batch(args):
         raise InputError("--video needs a single input (use `irdetect video` per result)")
@@ -89,6 +90,9 @@ def run(args) -> int:
                            progress=args.progress, workers=args.threads or DEFAULT_THREADS)
     log.info("wrote %s: %d frames, %d detections, %d tracks in %.1f s", output,
              summary["frames"], summary["detections"], summary["tracks"], summary["seconds"])
+    if not summary["detections"] and config.suppress.polarity == "bright":
+        log.info("no detection: targets darker than their background (a recording saved "
+                 "black-hot) are found with --polarity dark")
     if args.video:
         render_after_process(args.input, output, args)
     return 0

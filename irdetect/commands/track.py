@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from irdetect.commands import DATASET_HELP, SEQUENCE_KINDS
+from irdetect.commands import DATASET_HELP, POLARITY_HELP, SEQUENCE_KINDS, with_polarity
 from irdetect.config import to_json
 from irdetect.profiles import load_profile
 from irdetect.errors import refused_settings
@@ -47,6 +47,7 @@ def add_arguments(p):
     p.add_argument("--sea-sky", action="store_true", default=None,
                    help="maritime scene: search only near the sea-sky line")
     p.add_argument("--dataset", help=DATASET_HELP)
+    p.add_argument("--polarity", choices=["bright", "dark"], help=POLARITY_HELP)
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
 
 
@@ -56,7 +57,7 @@ def run(args) -> int:
 
     overrides = {k: v for k, v in (("method", args.method), ("sea_sky", args.sea_sky))
                  if v is not None}
-    config = load_profile(args.profile, args.config)
+    config = with_polarity(load_profile(args.profile, args.config), args.polarity)
     config = dataclasses.replace(config, track=dataclasses.replace(config.track, **overrides))
     path = Path(args.input)
     output = Path(args.output or f"{path.name if path.is_dir() else path.stem}.track.h5")
@@ -82,6 +83,8 @@ def run(args) -> int:
 
         log.info("no track: a frame-by-frame tracker follows targets that reach the "
                  "per-frame level (%.1f local sigmas here) in most frames; for dimmer ones "
-                 "irdetect process integrates 12 frames",
-                 frame_level(source.shape[1:], config.track.false_rate))
+                 "irdetect process integrates 12 frames%s",
+                 frame_level(source.shape[1:], config.track.false_rate),
+                 "; targets darker than their background (a recording saved black-hot) "
+                 "take --polarity dark" if config.suppress.polarity == "bright" else "")
     return 0

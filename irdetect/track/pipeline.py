@@ -12,6 +12,7 @@ from tqdm import tqdm
 from irdetect import tables
 from irdetect.io.sources import FrameSource, check_values
 from irdetect.peaks import STANDARDISE_ERROR, cfar_level, frame_level
+from irdetect.suppress import POLARITIES, bright_up
 from irdetect.track.confirm import ClutterTest
 from irdetect.track.detector import detector_blocks, guided_regions, peak_regions
 from irdetect.track.regions import extract_regions, residual_level
@@ -75,7 +76,8 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
         Show a tqdm bar over frames.
     suppression : dict, optional
         Keywords of ``irdetect.suppress.suppress`` for the detector's regions (the
-        ``[suppress]`` table; ``irdetect.track.detector.SUPPRESS_DEFAULTS`` otherwise).
+        ``[suppress]`` table; ``irdetect.track.detector.SUPPRESS_DEFAULTS`` otherwise);
+        its ``polarity`` ``"dark"`` mirrors the frames of the top-hat regions too.
     camera_sink : callable, optional
         Called with the ``irdetect.tables.CAMERA`` rows (the camera's offset x, y px of
         every frame) as they are measured (the detector's regions only).
@@ -209,6 +211,11 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     if not 0 < fraction <= 1:
         raise ValueError(f"fraction must lie in (0, 1], got {fraction!r}")
     detector = regions == "detector"
+    # the top-hat regions take the frames mirrored as the detector's suppression does
+    polarity = (suppression or {}).get("polarity", "bright")
+    if polarity not in POLARITIES:
+        raise ValueError(f"polarity must be one of {POLARITIES}, got {polarity!r}")
+    dark = polarity == "dark"
     level, guided = 0.0, None
     if detector:
         if tile < 1 or int(tile) != tile:
@@ -225,7 +232,8 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
         grey_levels = grey_scale
     else:
         # grey differences in sigmas of the first frame's residual: measured once per run
-        s0 = residual_level(np.asarray(frames[0]), suppress_size)[1] if n else 1.0
+        s0 = residual_level(bright_up(frames[0]) if dark else np.asarray(frames[0]),
+                            suppress_size)[1] if n else 1.0
         grey_levels = grey_scale * (s0 if np.isfinite(s0) and s0 > 0 else 1.0)
     test = None
     if false_tracks > 0:
@@ -274,7 +282,7 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
             block = np.asarray(frames[start:start + window])
             if isinstance(frames, FrameSource):     # a file's frames must be finite
                 check_values(block, start, frames.path)
-            yield start, block, None
+            yield start, bright_up(block) if dark else block, None
 
     with tqdm(total=n, unit="frame", desc="track", disable=not progress) as bar:
         for start, block, off in blocks():
