@@ -34,7 +34,7 @@ Data Bank, 2019, DOI 10.11922/sciencedb.902.
 
 Usage: .venv/bin/python scripts/bench_real.py [--out docs/results/real.md] [--only NAME]
        [--config CONFIG.toml] [--no-variants] [--no-loo] [--no-pan] [--no-noise]
-       [--no-transforms]
+       [--no-transforms] [--no-codecs]
        [--picture NAME:FRAME[:X:Y]] [--pair NAME:FRAME]
 
 Section 3 (variants) reruns irdetect on every sequence with one option changed at a
@@ -50,6 +50,8 @@ Section 6 (added noise) runs the defaults on each sequence with white noise adde
 Section 7 (transformed) runs the defaults on each sequence mirrored, reversed in time, at
 half the frame rate and at half the size (``transformed``): recordings of the same scenes
 that no setting was chosen on.
+Section 8 (compressed) runs the defaults on each sequence as a lossy file delivers it
+(``compressed``): every frame a JPEG of quality 75, and an MPEG-4 video.
 """
 
 from __future__ import annotations
@@ -60,6 +62,7 @@ import datetime
 import math
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -219,7 +222,7 @@ def run_noisy(data: dict, cfg: ProcessConfig, seed: int = 0) -> list:
 def run_clips(data: dict, cfg: ProcessConfig, keys, clip_of, label) -> list:
     """(name, key, irdetect's row) for every sequence of ``data`` (name -> (frames,
     truth)) and every key of ``keys``: the run on ``clip_of(name, frames, truth, key)`` ->
-    (frames, truth, gate), with the top-hat peak's hit rate (sections 6 and 7;
+    (frames, truth, gate), with the top-hat peak's hit rate (sections 6 to 8;
     ``label(key)`` names the clip in the progress lines)."""
     rows = []
     for key in keys:
@@ -261,6 +264,51 @@ def transformed(frames, truth, kind: str, gate: float):
         t["x"], t["y"] = (t["x"] + 0.5) / 2 - 0.5, (t["y"] + 0.5) / 2 - 0.5
         return small, t, max(3.0, gate / 2)
     raise ValueError(f"unknown transform {kind!r}")
+
+
+#: section 8: each sequence as a lossy file delivers it (``compressed``)
+CODECS = ("JPEG 75", "MPEG-4 video")
+
+
+def compressed(frames, truth, kind: str, gate: float):
+    """(frames, truth, gate) of an 8-bit sequence as ``kind`` of CODECS delivers it:
+    every frame a JPEG of quality 75 (``cv2.imencode``: MATLAB's ``VideoWriter`` writes
+    its default profile, Motion JPEG AVI, so), or an MPEG-4 part 2 video (OpenCV's
+    ``mp4v`` encoder at its default bit rate) read back by irdetect's video reader."""
+    frames = np.asarray(frames)
+    if frames.dtype != np.uint8:
+        raise ValueError(f"compressed() takes 8-bit frames, got {frames.dtype}")
+    if kind == "JPEG 75":
+        jpeg = [cv2.imencode(".jpg", f, [cv2.IMWRITE_JPEG_QUALITY, 75])[1] for f in frames]
+        return np.stack([cv2.imdecode(b, cv2.IMREAD_GRAYSCALE) for b in jpeg]), truth, gate
+    if kind == "MPEG-4 video":
+        h, w = frames.shape[1:]
+        with tempfile.TemporaryDirectory() as folder:
+            path = os.path.join(folder, "clip.mp4")
+            writer = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (w, h),
+                                     isColor=False)
+            for f in frames:
+                writer.write(f)
+            writer.release()
+            with open_sequence(path) as src:
+                return src[0:len(src)], truth, gate
+    raise ValueError(f"unknown codec {kind!r}")
+
+
+def run_compressed(data: dict, cfg: ProcessConfig) -> list:
+    """Section 8: (name, codec, irdetect's row) for every sequence and CODECS; the row's
+    ``change`` is the codec's mean absolute change per pixel (grey levels)."""
+    change = {}
+
+    def clip(name, frames, truth, kind):
+        out, truth, gate = compressed(frames, truth, kind, gate_of(name))
+        change[name, kind] = float(np.abs(out.astype(np.float32) - frames).mean())
+        return out, truth, gate
+
+    rows = run_clips(data, cfg, CODECS, clip, str)
+    for name, kind, r in rows:
+        r["change"] = change[name, kind]
+    return rows
 
 
 def run_transformed(data: dict, cfg: ProcessConfig) -> list:
@@ -680,6 +728,8 @@ def main(argv=None) -> int:
     ap.add_argument("--no-transforms", action="store_true",
                     help="skip section 7 (the sequences mirrored, reversed, at half the "
                     "frame rate and at half the size)")
+    ap.add_argument("--no-codecs", action="store_true",
+                    help="skip section 8 (the sequences as JPEG frames and MPEG-4 video)")
     args = ap.parse_args(argv)
     if not REAL.is_dir():
         print(f"real data not found at {REAL} (../shared/data/real beside the repo)")
@@ -730,9 +780,10 @@ def main(argv=None) -> int:
     pans = run_panned(every, cfg) if every and not args.no_pan else []
     noise = run_noisy(every, cfg) if every and not args.no_noise else []
     transforms = run_transformed(every, cfg) if every and not args.no_transforms else []
+    codecs = run_compressed(every, cfg) if every and not args.no_codecs else []
     total = time.perf_counter() - t_all
     write_report(Path(args.out), rows, trackpy is not None, total, variants,
-                 args.config, loo, load_avg, pans, noise, transforms)
+                 args.config, loo, load_avg, pans, noise, transforms, codecs)
     print(f"wrote {args.out}")
     write_roc_figure(Path(args.out).with_name("real-roc.png"), rows)
     return 0
@@ -753,7 +804,7 @@ def write_roc_figure(path: Path, rows) -> None:
 
 def write_report(path: Path, rows, have_trackpy: bool, total: float, variants=(),
                  config_path=None, loo=(), load_avg: float = float("nan"), pans=(),
-                 noise=(), transforms=()) -> None:
+                 noise=(), transforms=(), codecs=()) -> None:
     today = datetime.date.today().isoformat()
     cores = os.cpu_count() or 1
     busy = ": other jobs were running, so frames/s are noisy" if load_avg > 0.5 * cores else ""
@@ -937,6 +988,24 @@ def write_report(path: Path, rows, have_trackpy: bool, total: float, variants=()
             "",
         ]
         lines += _by_column(transforms, TRANSFORMS, str)
+    if codecs:
+        lines += [
+            "",
+            "## 8. The sequences compressed",
+            "",
+            "Each sequence as a lossy file delivers it (`compressed`): every frame a JPEG "
+            "of quality 75 (MATLAB's `VideoWriter` writes its default profile, Motion JPEG "
+            "AVI, so), and an MPEG-4 part 2 video (OpenCV's `mp4v` encoder at its default "
+            "bit rate) read back through irdetect's video reader. The mean absolute change "
+            "per pixel is given under the table. None of irdetect's settings was chosen on "
+            "these clips. Goal as in section 1.",
+            "",
+        ]
+        lines += _by_column(codecs, CODECS, str)
+        for kind in CODECS:
+            ch = [r["change"] for _, k, r in codecs if k == kind]
+            lines.append(f"{kind}: mean absolute change per pixel {min(ch):.2f}-{max(ch):.2f} "
+                         "grey levels over the sequences.")
     lines += ["", f"Whole benchmark: {total:.0f} s.", ""]
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
@@ -945,7 +1014,7 @@ def write_report(path: Path, rows, have_trackpy: bool, total: float, variants=()
 
 
 def _by_column(rows, keys, label) -> list[str]:
-    """A table with one group of columns per key (sections 6 and 7): ``rows`` of (name,
+    """A table with one group of columns per key (sections 6 to 8): ``rows`` of (name,
     key, irdetect's row), ``label(key)`` naming each group; then the totals per key."""
     lines = [
         "| sequence | " + " | ".join(
