@@ -263,6 +263,9 @@ class ProcessConfig:
     operating: OperatingConfig = field(default_factory=OperatingConfig)
     initiate: InitiateConfig = field(default_factory=InitiateConfig)
     track: TrackConfig = field(default_factory=TrackConfig)
+    #: pixels where nothing is reported (``irdetect.exclude``: rectangles "X0,Y0,X1,Y1"
+    #: or mask images; a burned-in overlay): process and track
+    exclude: tuple = ()
 
 
 def from_dict(cls, data: dict, *, where: str = "config", path=None):

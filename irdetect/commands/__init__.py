@@ -10,15 +10,28 @@ DATASET_HELP = (
 #: what ``--truth FILE`` may name (``irdetect.io.find_truth``)
 TRUTH_KINDS = ("a sequence with /truth, a text file of 'x y' per frame, a recording folder, "
                "or a folder of target masks")
-#: the help of every ``--polarity`` (``suppress.polarity``)
-POLARITY_HELP = ("bright: targets brighter than their background (a white-hot recording, "
-                 "the default); dark: darker (a black-hot recording, a cold target); "
-                 "sets suppress.polarity")
 
 
-def with_polarity(config, polarity):
-    """``config`` with ``suppress.polarity`` set to ``polarity`` (None: unchanged)."""
-    if polarity is None:
-        return config
-    return dataclasses.replace(config, suppress=dataclasses.replace(config.suppress,
-                                                                    polarity=polarity))
+def add_input_options(p) -> None:
+    """``--polarity`` and ``--exclude``: what the targets look like and where nothing is
+    reported, shared by ``process`` and ``track`` (``with_input_options``)."""
+    p.add_argument("--polarity", choices=["bright", "dark"],
+                   help="bright: targets brighter than their background (a white-hot "
+                   "recording, the default); dark: darker (a black-hot recording, a cold "
+                   "target); sets suppress.polarity")
+    p.add_argument("--exclude", action="append", metavar="X0,Y0,X1,Y1|MASK",
+                   help="pixels where nothing is reported (a burned-in time stamp or "
+                   "reticle): a rectangle in px (x = column; columns X0..X1-1, rows "
+                   "Y0..Y1-1) or an image of the frames' size whose nonzero pixels are "
+                   "excluded; repeatable, added to the configuration's exclude")
+
+
+def with_input_options(config, args):
+    """``config`` with ``--polarity`` (``suppress.polarity``) and ``--exclude`` (added to
+    ``exclude``) of ``args`` applied."""
+    if args.polarity is not None:
+        config = dataclasses.replace(config, suppress=dataclasses.replace(
+            config.suppress, polarity=args.polarity))
+    if args.exclude:
+        config = dataclasses.replace(config, exclude=tuple(config.exclude) + tuple(args.exclude))
+    return config

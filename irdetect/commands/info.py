@@ -86,7 +86,8 @@ def config_changes(config: dict) -> list[str]:
     out = []
     for section, values in sorted(config.items()):
         if not isinstance(values, dict):
-            out.append(f"{section} = {json.dumps(values)}")
+            if values != defaults.get(section):
+                out.append(f"{section} = {json.dumps(values)}")
             continue
         known = defaults.get(section, {})
         for key, value in sorted(values.items()):

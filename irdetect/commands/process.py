@@ -19,7 +19,8 @@ import logging
 import os
 from pathlib import Path
 
-from irdetect.commands import DATASET_HELP, POLARITY_HELP, SEQUENCE_KINDS, with_polarity
+from irdetect.commands import (DATASET_HELP, SEQUENCE_KINDS, add_input_options,
+                               with_input_options)
 from irdetect.batch import SCHEDULER_ENV, expand_inputs, is_image_folder, output_name
 from irdetect.profiles import load_profile, profile_names
 from irdetect.commands.video import add_style_arguments as add_video_arguments
@@ -60,7 +61,7 @@ def add_arguments(p):
                    "correlation of each window triple runs beside the next windows' front "
                    "end); the results do not depend on it")
     p.add_argument("--dataset", help=DATASET_HELP)
-    p.add_argument("--polarity", choices=["bright", "dark"], help=POLARITY_HELP)
+    add_input_options(p)
     p.add_argument("--force", action="store_true",
                    help="overwrite an existing output (batch: redo finished inputs)")
     p.add_argument("--video", metavar="OUT", help="single input: also write the annotated "
@@ -71,7 +72,7 @@ def add_arguments(p):
 def run(args) -> int:
     from irdetect.pipeline import check_config, process_file
 
-    config = with_polarity(load_profile(args.profile, args.config), args.polarity)
+    config = with_input_options(load_profile(args.profile, args.config), args)
     check_config(config, args.config)         # a bad value fails now, not mid-run
     if args.video and _is_batch(args):
         raise InputError("--video needs a single input (use `irdetect video` per result)")

@@ -22,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from irdetect.commands import DATASET_HELP, POLARITY_HELP, SEQUENCE_KINDS, with_polarity
+from irdetect.commands import (DATASET_HELP, SEQUENCE_KINDS, add_input_options,
+                               with_input_options)
 from irdetect.config import to_json
 from irdetect.profiles import load_profile
 from irdetect.errors import refused_settings
@@ -47,7 +48,7 @@ def add_arguments(p):
     p.add_argument("--sea-sky", action="store_true", default=None,
                    help="maritime scene: search only near the sea-sky line")
     p.add_argument("--dataset", help=DATASET_HELP)
-    p.add_argument("--polarity", choices=["bright", "dark"], help=POLARITY_HELP)
+    add_input_options(p)
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
 
 
@@ -57,7 +58,7 @@ def run(args) -> int:
 
     overrides = {k: v for k, v in (("method", args.method), ("sea_sky", args.sea_sky))
                  if v is not None}
-    config = with_polarity(load_profile(args.profile, args.config), args.polarity)
+    config = with_input_options(load_profile(args.profile, args.config), args)
     config = dataclasses.replace(config, track=dataclasses.replace(config.track, **overrides))
     path = Path(args.input)
     output = Path(args.output or f"{path.name if path.is_dir() else path.stem}.track.h5")
@@ -75,7 +76,8 @@ def run(args) -> int:
         out.append("track_points", tables.empty(tables.TRACK_POINT))
         points, summary = track(source, lambda rows: out.append("track_points", rows),
                                 args.progress, dataclasses.asdict(config.suppress),
-                                lambda rows: out.append("camera", rows), **params)
+                                lambda rows: out.append("camera", rows), **params,
+                                exclude=config.exclude)
         out.write("tracks", summary)
     log.info("wrote %s: %d frames, %d tracks", output, len(source), len(summary))
     if not len(summary) and config.track.regions == "detector":

@@ -29,6 +29,7 @@ from irdetect import kernels, tables
 from irdetect.combine import frames_needed, window_starts
 from irdetect.config import ProcessConfig, to_json
 from irdetect.errors import InputError, refused_settings
+from irdetect.exclude import exclusion_mask, read_exclusions
 from irdetect.pipeline import combined
 from irdetect.pipeline.combined import Pending, StageParams, correlate_windows, front
 from irdetect.pipeline.fusion import SUPPORT_GATE, finish, initiate_tracks
@@ -167,6 +168,7 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     starts = window_starts(n_frames, length=cc.length, step=cc.step)
     params = StageParams(config)
+    params.exclude = exclusion_mask(config.exclude, shape[1:])
     # the first window(s) look ahead: their first frames have no past (``lead_in``)
     ahead = [future_frames(start=int(s), stop=int(s) + cc.length, **params.suppress)
              for s in starts]
@@ -373,8 +375,10 @@ def check_config(config: ProcessConfig, path=None, frame_shape=(32, 32)) -> None
     corners = tables.from_columns(
         tables.DETECTION, x=[0.0, w - 1.0, 0.0, w - 1.0], y=[0.0, 0.0, h - 1.0, h - 1.0],
         frame_start=[0, 0, 36, 36], frame_end=[11, 11, 47, 47], combined_frame=[0, 0, 3, 3])
+    read_exclusions(config.exclude)         # the frames' size is checked by check_frames
     with refused_settings(path):
-        detect_sequence(np.zeros((min_frames(config), 32, 32), np.float32), config)
+        detect_sequence(np.zeros((min_frames(config), 32, 32), np.float32),
+                        dataclasses.replace(config, exclude=()))
         initiate_detections(corners, **asdict(config.initiate))
 
 
@@ -390,6 +394,7 @@ def check_frames(shape, config: ProcessConfig, path=None) -> None:
         (T, H, W) of the sequence.
     """
     _, h, w = shape
+    exclusion_mask(config.exclude, (h, w))  # a mask image of another size
     if min(h, w) < MIN_SIDE:
         raise InputError(f"frames of {w}x{h} px are too small: a target and its "
                          f"background need at least {MIN_SIDE}x{MIN_SIDE} px", path)

@@ -19,6 +19,7 @@ from irdetect.combine import combine
 from irdetect.config import ProcessConfig
 from irdetect.correlate import Correlation, correlate
 from irdetect.detect import detect
+from irdetect.exclude import excluded
 from irdetect.fuse import fuse
 from irdetect.peaks import frame_level, frame_peaks
 from irdetect.operating import integrated_map, map_threshold, significance
@@ -142,6 +143,9 @@ class StageParams:
         # the verification of chains needs the matched residual frames of each window
         self.matched = config.correlate.verify > 0 or self.frame
         self.psf = config.combine.dp_smooth
+        # the excluded pixels (irdetect.exclude), set by the driver once the frames'
+        # size is known
+        self.exclude = None
 
 
 
@@ -201,6 +205,10 @@ def front(block, previous, params: StageParams, timings: dict | None, following=
         more = fuse(det_scene, scene, **params.fuse)
         more["band"] = 2
         cand = np.concatenate([cand, more])
+    if params.exclude is not None:
+        cand = cand[~excluded(params.exclude, cand["x"], cand["y"])]
+        if peaks is not None:
+            peaks = peaks[~excluded(params.exclude, peaks["x"], peaks["y"])]
     lap(timings, "fuse", t)
     return cand, det.count, matched, peaks
 

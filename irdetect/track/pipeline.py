@@ -10,6 +10,7 @@ import numpy as np
 from tqdm import tqdm
 
 from irdetect import tables
+from irdetect.exclude import excluded, exclusion_mask
 from irdetect.io.sources import FrameSource, check_values
 from irdetect.peaks import STANDARDISE_ERROR, cfar_level, frame_level
 from irdetect.suppress import POLARITIES, bright_up
@@ -42,7 +43,7 @@ LINE_AREA = 6
 
 def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bool = False,
           suppression: dict | None = None,
-          camera_sink: Callable[[np.ndarray], None] | None = None, *,
+          camera_sink: Callable[[np.ndarray], None] | None = None, exclude=(), *,
           method: str = "fcm-pmht", regions: str = "detector", false_rate: float = 1.0,
           psf: float = 1.0, fraction: float = 0.5, false_tracks: float = 0.001,
           sigma: float = 1.0, max_speed: float = 16.0, learn_frames: int = 12,
@@ -81,6 +82,9 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     camera_sink : callable, optional
         Called with the ``irdetect.tables.CAMERA`` rows (the camera's offset x, y px of
         every frame) as they are measured (the detector's regions only).
+    exclude : sequence of str
+        Pixels where no region is taken (``irdetect.exclude``: rectangles "X0,Y0,X1,Y1"
+        or mask images of the frames' size; a burned-in overlay).
     method : {"fcm-pmht", "gnn"}
         FCM association + adaptive PMHT (:class:`FCMPMHTTracker`) or the CV Kalman + global
         nearest neighbour baseline (:class:`GNNTracker`).
@@ -164,7 +168,6 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
         baseline ignores the FCM, adaptive-noise and merge ones).
     window : int
         Frames read at a time (the top-hat regions; the detector reads 12-frame windows).
-
     Returns
     -------
     points : ndarray of dtype TRACK_POINT
@@ -200,6 +203,7 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     if len(frames.shape) != 3:
         raise ValueError(f"frames must be (T, H, W), got shape {frames.shape}")
     n, h, w = frames.shape
+    excluded_px = exclusion_mask(exclude, (h, w))
     if not grey_scale > 0:
         raise ValueError(f"grey_scale must be > 0, got {grey_scale!r}")
     if not (np.isfinite(false_tracks) and false_tracks >= 0):
@@ -306,6 +310,9 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
                                       region_kw, min_shape)
                         seeds = np.arange(len(regs) + len(more)) < len(regs)
                         regs = np.concatenate([regs, more])
+                    if excluded_px is not None:
+                        kept = ~excluded(excluded_px, regs["x"], regs["y"])
+                        regs, seeds = regs[kept], None if seeds is None else seeds[kept]
                     regs = _to_scene(regs, o)
                 else:
                     mask = None
@@ -313,6 +320,7 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
                         mask = sea_sky_band(find_sea_sky_line(frame), (h, w),
                                             above=band_above, below=band_below)
                     regs = extract_regions(frame, mask=mask, **region_kw)
+                    regs = regs[~excluded(excluded_px, regs["x"], regs["y"])]
                     o = (0.0, 0.0)
                 n_regions += len(regs)
                 out.append(tracker.step(start + j, regs, (h, w), o, seeds))
