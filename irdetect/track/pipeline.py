@@ -168,6 +168,7 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
         baseline ignores the FCM, adaptive-noise and merge ones).
     window : int
         Frames read at a time (the top-hat regions; the detector reads 12-frame windows).
+
     Returns
     -------
     points : ndarray of dtype TRACK_POINT
