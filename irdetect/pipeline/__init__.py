@@ -375,7 +375,7 @@ def check_config(config: ProcessConfig, path=None, frame_shape=(32, 32)) -> None
     corners = tables.from_columns(
         tables.DETECTION, x=[0.0, w - 1.0, 0.0, w - 1.0], y=[0.0, 0.0, h - 1.0, h - 1.0],
         frame_start=[0, 0, 36, 36], frame_end=[11, 11, 47, 47], combined_frame=[0, 0, 3, 3])
-    read_exclusions(config.exclude)         # the frames' size is checked by check_frames
+    read_exclusions(config.exclude)         # the frames' size: as the run starts
     with refused_settings(path):
         detect_sequence(np.zeros((min_frames(config), 32, 32), np.float32),
                         dataclasses.replace(config, exclude=()))
@@ -394,7 +394,6 @@ def check_frames(shape, config: ProcessConfig, path=None) -> None:
         (T, H, W) of the sequence.
     """
     _, h, w = shape
-    exclusion_mask(config.exclude, (h, w))  # a mask image of another size
     if min(h, w) < MIN_SIDE:
         raise InputError(f"frames of {w}x{h} px are too small: a target and its "
                          f"background need at least {MIN_SIDE}x{MIN_SIDE} px", path)
