@@ -21,8 +21,8 @@ settings chosen on them (REAL_GRID) are reported leave-one-out, and a clutter-on
 each (the frames' largest strip at least CROP_MARGIN px from the target's whole path) counts
 the false tracks per 1,000 frames; each is also tracked under an added pan (bench_real's
 ``pan_clips``, the clips of its section 5), with added noise (its ``noisy``, section 6)
-and transformed (its ``transformed``, section 7: mirrored, reversed, every 2nd frame, half
-size).
+transformed (its ``transformed``, section 7: mirrored, reversed, every 2nd frame, half
+size) and compressed (its ``compressed``, section 8: JPEG frames, MPEG-4 video).
 Runs go through irdetect.batch.map_tasks, so a many-seed study spreads over local processes
 (--jobs) or a Dask cluster (--scheduler) with one option; frames/s are per run either way.
 """
@@ -42,8 +42,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench_real import (NOISE_LEVELS, PAN_SPEEDS, TRANSFORMS, noisy,  # noqa: E402  (scripts/)
-                        pan_clips, transformed)
+from bench_real import (CODECS, NOISE_LEVELS, PAN_SPEEDS, TRANSFORMS,  # noqa: E402  (scripts/)
+                        compressed, noisy, pan_clips, transformed)
 from irdetect import __version__  # noqa: E402
 from irdetect.batch import map_tasks  # noqa: E402
 from irdetect.io import open_sequence, read_point_annotations  # noqa: E402
@@ -437,6 +437,8 @@ def _real():
         data, NOISE_LEVELS, lambda name, f, t, v: (noisy(f, v), t, _gate(name)))
     xf_rows, xf_goal = _columns(
         data, TRANSFORMS, lambda name, f, t, k: transformed(f, t, k, _gate(name)))
+    codec_rows, codec_goal = _columns(
+        data, CODECS, lambda name, f, t, k: compressed(f, t, k, _gate(name)))
     n_frames = sum(c[2] for c in crops)
     n_tracks = sum(c[3] for c in crops)
     n_plain = sum(c[5] for c in crops)
@@ -540,6 +542,17 @@ none of the tracker's settings was chosen on them. At the goal: {", ".join(
 | folder | {" | ".join(f"{k}: MOTA / IDF1 / tracks / at the goal" for k in TRANSFORMS)} |
 |---|{"---|" * len(TRANSFORMS)}
 {chr(10).join(xf_rows)}
+
+### The folders compressed
+
+The real folders as lossy files deliver them (`bench_real.compressed`: the clips of
+section 8 of docs/results/real.md; every frame a JPEG of quality 75, and an MPEG-4 video),
+tracked with the defaults; none of the tracker's settings was chosen on them. At the
+goal: {", ".join(f"{codec_goal[k]} of {len(codec_rows)} ({k})" for k in CODECS)}.
+
+| folder | {" | ".join(f"{k}: MOTA / IDF1 / tracks / at the goal" for k in CODECS)} |
+|---|{"---|" * len(CODECS)}
+{chr(10).join(codec_rows)}
 """
     return rows, extra
 
