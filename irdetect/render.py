@@ -34,6 +34,7 @@ import numpy as np
 
 from irdetect import tables
 from irdetect.errors import InputError
+from irdetect.exclude import exclusion_mask
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +44,7 @@ COLOURS = {
     "tracker": (0, 230, 255),      # yellow: frame-by-frame tracker
     "truth": (0, 210, 0),          # green
     "candidate": (200, 200, 200),  # light grey
+    "excluded": (150, 90, 90),     # dim blue: the outline of the excluded pixels
     "text": (255, 255, 255),
 }
 #: BGR colours of detections, cycled by combined frame so neighbouring windows differ
@@ -152,6 +154,9 @@ class Overlay:
     track_points: np.ndarray
     truth: np.ndarray
     camera: np.ndarray | None = None
+    #: outlines of the excluded pixels (``irdetect.exclude``): int32 arrays (n, 1, 2) of
+    #: (x, y) px, as ``cv2.findContours`` gives them
+    excluded: tuple = ()
 
     def track_at(self, row, frames) -> tuple[np.ndarray, np.ndarray]:
         """(x, y) of one TRACK row in ``frames`` (a scene track follows the camera)."""
@@ -162,8 +167,10 @@ class Overlay:
         return pos[:, 0], pos[:, 1]
 
     @classmethod
-    def from_tables(cls, found: dict, truth: np.ndarray | None = None) -> "Overlay":
-        """Build from a dict name -> table (e.g. ``read_results(path).tables``)."""
+    def from_tables(cls, found: dict, truth: np.ndarray | None = None,
+                    excluded: np.ndarray | None = None) -> "Overlay":
+        """Build from a dict name -> table (e.g. ``read_results(path).tables``);
+        ``excluded``: the (H, W) bool mask of the run's excluded pixels, if any."""
         def get(name):
             t = found.get(name)
             return tables.empty(name) if t is None else np.asarray(t)
@@ -179,7 +186,10 @@ class Overlay:
                    tracks=get("tracks"),
                    track_points=tp[np.argsort(tp["frame"], kind="stable")],
                    truth=tr[np.argsort(tr["frame"], kind="stable")],
-                   camera=found.get("camera"))
+                   camera=found.get("camera"),
+                   excluded=() if excluded is None else tuple(cv2.findContours(
+                       excluded.astype(np.uint8), cv2.RETR_EXTERNAL,
+                       cv2.CHAIN_APPROX_SIMPLE)[0]))
 
     def _window_rows(self, table, t):
         if not len(table):
@@ -282,6 +292,10 @@ def draw_overlay(image: np.ndarray, t: int, overlay: Overlay, style: Style = Sty
     th = style.thickness
     h, w = image.shape[:2]
     counts = {}
+    for c in overlay.excluded:
+        px, py = _to_px(c[:, 0, 0], c[:, 0, 1], s)
+        pts = np.rint(np.column_stack([px, py]) * (1 << _SHIFT)).astype(np.int32)
+        cv2.polylines(image, [pts], True, COLOURS["excluded"], 1, cv2.LINE_AA, _SHIFT)
     if style.candidates:
         cand = overlay.candidates_at(t)
         px, py = _to_px(cand["x"], cand["y"], s)
@@ -449,6 +463,8 @@ def legend_items(overlay: Overlay, style: Style, *, truth: bool) -> list[tuple[s
         items.append(("candidate", COLOURS["candidate"]))
     if truth and len(overlay.truth):
         items.append(("truth", COLOURS["truth"]))
+    if overlay.excluded:
+        items.append(("excluded", COLOURS["excluded"]))
     return items
 
 
@@ -613,9 +629,14 @@ def write_video(source, results, output, *, fps: float | None = None,
     inputs = (results.path, source.path)
     check_video_path(output, force, inputs)
     check_results_match(results, source.shape, sequence_name=Path(source.path).name)
-    overlay = Overlay.from_tables(results.tables, truth)
-    style = Style(scale=float(scale), trail=int(trail), candidates=candidates)
     config = results.config
+    try:
+        excluded = exclusion_mask(config.get("exclude", ()), (H, W))
+    except InputError as exc:       # a mask image moved since the run: drawn without it
+        log.warning("the excluded pixels are not drawn: %s", exc)
+        excluded = None
+    overlay = Overlay.from_tables(results.tables, truth, excluded)
+    style = Style(scale=float(scale), trail=int(trail), candidates=candidates)
     length = int(results.attrs.get("combined_length", 12))
     sup_params = dict(config.get("suppress", {}))
     comb_params = {k: v for k, v in config.get("combine", {}).items()

@@ -395,3 +395,27 @@ def test_process_writes_the_video_after_the_results(scene, cli, tmp_path):
     assert code == 0, err
     frames, _ = _read_video(tmp_path / "v.avi")
     assert len(frames) == T // 2 and (tmp_path / "r.h5").exists()
+
+
+def test_the_excluded_pixels_are_outlined(scene, tmp_path):
+    """A run's ``exclude`` rectangle is drawn as an outline in its colour, on its border
+    and nowhere else; a mask image that has since gone is a warning, not an error."""
+    import json
+
+    found, attrs = _truth_results(scene["truth"], tracks=False)
+    found["detections"] = tables.empty("detections")
+    res = _write_results(tmp_path / "res.h5",
+                         found, {**attrs, "config": json.dumps({"exclude": ["10,20,30,35"]})})
+    with open_sequence(scene["seq"]) as src:
+        write_video(src, read_results(res), tmp_path / "png", scale=1.0, legend=False)
+    _, images = _read_png_folder(tmp_path / "png")
+    img = images[0].astype(int)
+    drawn = np.abs(img - np.array(COLOURS["excluded"])).sum(axis=2) < 40
+    border = np.zeros((H, W), bool)
+    border[20:35, 10:30] = True
+    border[21:34, 11:29] = False
+    assert drawn[border].mean() > 0.9 and not drawn[~border].any()
+    gone = _write_results(tmp_path / "gone.h5", found,
+                          {**attrs, "config": json.dumps({"exclude": [str(tmp_path / "x.png")]})})
+    with open_sequence(scene["seq"]) as src:
+        assert write_video(src, read_results(gone), tmp_path / "png2", scale=1.0)["frames"] == T
