@@ -34,7 +34,7 @@ from irdetect.errors import InputError
 from irdetect.hough import hough_grid, hough_transform
 from irdetect.initiate.base import vote_threshold
 from irdetect.render import (COLOURS, WINDOW_PALETTE, Overlay, check_results_match,
-                             display_limits, stretch)
+                             display_limits, run_exclusions, stretch)
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +56,7 @@ PLOT_COLOURS = {
     "track": rgb(COLOURS["track"]),              # orange
     "tracker": rgb(COLOURS["tracker"]),          # yellow
     "truth": rgb(COLOURS["truth"]),              # green
+    "excluded": rgb(COLOURS["excluded"]),        # dim blue
     "windows": [rgb(c) for c in WINDOW_PALETTE],  # cyan, magenta, blue, pink by window
     "cell": (1.0, 1.0, 1.0),                     # white
     "centre": (0.0, 1.0, 1.0),                   # cyan
@@ -193,6 +194,10 @@ def draw_tracks(ax, background, shape, overlay: Overlay, *, gamma: float = 1.0) 
         grey = stretch(background, limits=(lo, hi), gamma=gamma)
     ax.imshow(grey, cmap="gray", vmin=0, vmax=255, interpolation="nearest",
               extent=(-0.5, w - 0.5, h - 0.5, -0.5))
+    for i, c in enumerate(overlay.excluded):
+        ring = np.vstack([c[:, 0], c[:1, 0]])
+        ax.plot(ring[:, 0], ring[:, 1], color=PLOT_COLOURS["excluded"], lw=1.0, zorder=2,
+                label="excluded (nothing reported)" if i == 0 else None)
     det = overlay.detections
     windows = PLOT_COLOURS["windows"]
     colours = [windows[int(k) % len(windows)] for k in det["combined_frame"]]
@@ -339,7 +344,8 @@ def plot_results(results, source=None, *, suppressed: bool = True, truth=None,
         scale = 1.0 if w >= 480 else float(min(4, int(np.ceil(480 / w))))
     # the tracker's /tracks summarise its paths: the paths themselves are drawn
     overlay = Overlay.from_tables({k: v for k, v in found.items()
-                                   if not (tracker and k == "tracks")}, truth)
+                                   if not (tracker and k == "tracks")}, truth,
+                                  run_exclusions(results.config, (h, w)))
     background, what = None, "no sequence: dark background"
     if source is not None:
         background = max_projection(source, suppressed=suppressed, config=results.config,

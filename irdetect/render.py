@@ -452,6 +452,17 @@ def status_strip(width: int, t: int, n_frames: int, counts: dict, *, window: str
     return strip
 
 
+def run_exclusions(config: dict, shape) -> np.ndarray | None:
+    """The (H, W) bool mask of the pixels a run excluded (its configuration's
+    ``exclude``; ``irdetect.exclude``), or None: none, or a mask image no longer found
+    (a warning: the picture is drawn without it)."""
+    try:
+        return exclusion_mask(config.get("exclude", ()), shape)
+    except InputError as exc:
+        log.warning("the excluded pixels are not drawn: %s", exc)
+        return None
+
+
 def legend_items(overlay: Overlay, style: Style, *, truth: bool) -> list[tuple[str, tuple]]:
     """(label, BGR colour) of the layers that have something to draw."""
     items = [("detections (colour = window)", WINDOW_PALETTE[0])]
@@ -630,12 +641,7 @@ def write_video(source, results, output, *, fps: float | None = None,
     check_video_path(output, force, inputs)
     check_results_match(results, source.shape, sequence_name=Path(source.path).name)
     config = results.config
-    try:
-        excluded = exclusion_mask(config.get("exclude", ()), (H, W))
-    except InputError as exc:       # a mask image moved since the run: drawn without it
-        log.warning("the excluded pixels are not drawn: %s", exc)
-        excluded = None
-    overlay = Overlay.from_tables(results.tables, truth, excluded)
+    overlay = Overlay.from_tables(results.tables, truth, run_exclusions(config, (H, W)))
     style = Style(scale=float(scale), trail=int(trail), candidates=candidates)
     length = int(results.attrs.get("combined_length", 12))
     sup_params = dict(config.get("suppress", {}))

@@ -220,3 +220,34 @@ def test_plot_draws_the_tracker_paths_of_track_results(tmp_path, cli):
         assert _near(yellow, fx, h - fy), (p["frame"], p["track_id"])
     code, _, err = cli("plot", "t.h5", "-o", "t.png")
     assert code == 0, err
+
+
+def test_plot_outlines_the_excluded_pixels(plotted):
+    """A run's ``exclude`` rectangle is outlined in the left panel where it lies."""
+    import json
+
+    import h5py
+
+    from irdetect.io import open_sequence, read_results
+    from irdetect.plot import PLOT_COLOURS, plot_results, write_figure
+
+    folder, _ = plotted
+    with h5py.File(folder / "res.h5", "r+") as f:
+        f.attrs["config"] = json.dumps({"exclude": ["4,40,40,58"]})
+    with open_sequence(folder / "seq.h5") as src:
+        fig = plot_results(read_results(folder / "res.h5"), src, scale=4)
+    write_figure(folder / "x.png", fig)
+    fig.canvas.draw()
+    img = cv2.cvtColor(cv2.imread(str(folder / "x.png")), cv2.COLOR_BGR2RGB)
+    blue = _colour_mask(img, PLOT_COLOURS["excluded"], tol=40)
+    ax = fig.axes[0]
+
+    def at(x, y):
+        """Image (column, row) of data point (x, y): matplotlib counts rows from below."""
+        px = ax.transData.transform([[x, y]])[0]
+        return px[0], img.shape[0] - px[1]
+
+    # the outline runs through the rectangle's corner and edge pixels, not its middle
+    assert all(_near(blue, *at(x, y)) for x, y in ((4, 40), (39, 40), (4, 57), (22, 57)))
+    assert not _near(blue, *at(22, 20), r=4)
+    assert "excluded (nothing reported)" in [t.get_text() for t in ax.get_legend().get_texts()]
