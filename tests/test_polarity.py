@@ -136,3 +136,22 @@ def test_process_that_detects_nothing_names_the_option(tmp_path, caplog):
         assert main(["process", str(seq), "-o", str(tmp_path / "dark.h5"),
                      "--polarity", "dark"]) == 0
     assert "--polarity dark" not in " ".join(r.getMessage() for r in caplog.records)
+
+
+def test_a_real_recording_saved_black_hot():
+    """istd640-seq4-71 (a 4.6 px/frame pan over a city) saved as 255 - v: the defaults
+    lose its target, ``dark`` finds the recording's detections and track again."""
+    from tests.conftest import real_sequence
+
+    from irdetect.io import open_sequence
+
+    with open_sequence(real_sequence("istd640-seq4-71") / "frames") as src:
+        frames = src[0:len(src)]
+    black = bright_up(frames)
+    assert black.dtype == np.uint8 and np.array_equal(black, 255 - frames)
+    white, dark = detect_sequence(frames), detect_sequence(black, DARK)
+    a, b = white["detections"], dark["detections"]
+    assert len(a) == len(b) and len(white["tracks"]) == len(dark["tracks"]) == 1
+    np.testing.assert_allclose(b["x"], a["x"], atol=1e-3)
+    np.testing.assert_allclose(b["y"], a["y"], atol=1e-3)
+    assert len(detect_sequence(black)["tracks"]) == 0
