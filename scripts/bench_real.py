@@ -34,7 +34,7 @@ Data Bank, 2019, DOI 10.11922/sciencedb.902.
 
 Usage: .venv/bin/python scripts/bench_real.py [--out docs/results/real.md] [--only NAME]
        [--config CONFIG.toml] [--no-variants] [--no-loo] [--no-pan] [--no-noise]
-       [--no-transforms] [--no-codecs]
+       [--no-transforms] [--no-codecs] [--no-overlay]
        [--picture NAME:FRAME[:X:Y]] [--pair NAME:FRAME]
 
 Section 3 (variants) reruns irdetect on every sequence with one option changed at a
@@ -52,6 +52,8 @@ half the frame rate and at half the size (``transformed``): recordings of the sa
 that no setting was chosen on.
 Section 8 (compressed) runs the defaults on each sequence as a lossy file delivers it
 (``compressed``): every frame a JPEG of quality 75, and an MPEG-4 video.
+Section 9 (overlaid) runs each sequence with a time stamp and a reticle burned in
+(``overlaid``), with the defaults and with the text's rows excluded (``exclude``).
 """
 
 from __future__ import annotations
@@ -219,17 +221,19 @@ def run_noisy(data: dict, cfg: ProcessConfig, seed: int = 0) -> list:
                      lambda v: f"+ noise {v:g}")
 
 
-def run_clips(data: dict, cfg: ProcessConfig, keys, clip_of, label) -> list:
+def run_clips(data: dict, cfg: ProcessConfig, keys, clip_of, label, config_of=None) -> list:
     """(name, key, irdetect's row) for every sequence of ``data`` (name -> (frames,
     truth)) and every key of ``keys``: the run on ``clip_of(name, frames, truth, key)`` ->
-    (frames, truth, gate), with the top-hat peak's hit rate (sections 6 to 8;
-    ``label(key)`` names the clip in the progress lines)."""
+    (frames, truth, gate), with the top-hat peak's hit rate (sections 6 to 9;
+    ``label(key)`` names the clip in the progress lines; ``config_of(cfg, key, clip)``,
+    when given, the configuration of each run instead of ``cfg``)."""
     rows = []
     for key in keys:
         for name, (frames, truth) in data.items():
             clip, moved, gate = clip_of(name, frames, truth, key)
             clip = np.ascontiguousarray(clip)
-            r = run_irdetect(clip, moved, gate, cfg)
+            run_cfg = cfg if config_of is None else config_of(cfg, key, clip)
+            r = run_irdetect(clip, moved, gate, run_cfg)
             r["peak"] = tophat_peak(clip, moved, gate)
             rows.append((name, key, r))
             print(f"{name} {label(key)}: {r['win_detected']}/{r['win_targets']} windows, "
@@ -309,6 +313,49 @@ def run_compressed(data: dict, cfg: ProcessConfig) -> list:
     for name, kind, r in rows:
         r["change"] = change[name, kind]
     return rows
+
+
+#: section 9: each sequence with symbology burned in (``overlaid``), run with the
+#: defaults and with the overlay's rows excluded (``ProcessConfig.exclude``)
+OVERLAID = ("overlay", "overlay excluded")
+
+
+def overlay_band(shape) -> str:
+    """The rows ``overlaid`` writes its text into, as an ``exclude`` rectangle
+    "X0,Y0,X1,Y1" of frames of ``shape`` (H, W)."""
+    h, w = shape
+    return f"0,{h - max(16, h // 12)},{w},{h}"
+
+
+def overlaid(frames, truth, gate):
+    """(frames, truth, gate) of the sequence with what a gimbal's video shows burned in,
+    in the frames' brightest value: a time stamp and two angles in the bottom rows
+    (``overlay_band``), their digits new every frame (``cv2.putText``, anti-aliased), and
+    a reticle of four strokes at the frame's centre."""
+    out = np.array(frames, copy=True)
+    n, h, w = out.shape
+    top = float(np.iinfo(out.dtype).max) if out.dtype.kind in "iu" else float(out.max())
+    scale = 0.4 * w / 320
+    cx, cy, a, b = w // 2, h // 2, max(3, w // 50), max(8, w // 16)
+    for k, f in enumerate(out):
+        text = (f"12:{k // 25:02d}:{k % 25 * 4:02d}.{k % 10}  AZ {123.4 + 0.07 * k:.2f}  "
+                f"EL {5.6 - 0.03 * k:.2f}")
+        cv2.putText(f, text, (8, h - max(4, h // 50)), cv2.FONT_HERSHEY_SIMPLEX, scale, top, 1,
+                    cv2.LINE_AA)
+        for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            cv2.line(f, (cx + a * dx, cy + a * dy), (cx + b * dx, cy + b * dy), top, 1)
+    return out, truth, gate
+
+
+def run_overlaid(data: dict, cfg: ProcessConfig) -> list:
+    """Section 9: (name, kind, irdetect's row) for every sequence and OVERLAID."""
+    def config_of(base, kind, clip):
+        if kind == "overlay":
+            return base
+        return dataclasses.replace(base, exclude=(overlay_band(clip.shape[1:]),))
+
+    return run_clips(data, cfg, OVERLAID,
+                     lambda name, f, t, k: overlaid(f, t, gate_of(name)), str, config_of)
 
 
 def run_transformed(data: dict, cfg: ProcessConfig) -> list:
@@ -730,6 +777,8 @@ def main(argv=None) -> int:
                     "frame rate and at half the size)")
     ap.add_argument("--no-codecs", action="store_true",
                     help="skip section 8 (the sequences as JPEG frames and MPEG-4 video)")
+    ap.add_argument("--no-overlay", action="store_true",
+                    help="skip section 9 (the sequences with a burned-in overlay)")
     args = ap.parse_args(argv)
     if not REAL.is_dir():
         print(f"real data not found at {REAL} (../shared/data/real beside the repo)")
@@ -781,9 +830,10 @@ def main(argv=None) -> int:
     noise = run_noisy(every, cfg) if every and not args.no_noise else []
     transforms = run_transformed(every, cfg) if every and not args.no_transforms else []
     codecs = run_compressed(every, cfg) if every and not args.no_codecs else []
+    overlays = run_overlaid(every, cfg) if every and not args.no_overlay else []
     total = time.perf_counter() - t_all
     write_report(Path(args.out), rows, trackpy is not None, total, variants,
-                 args.config, loo, load_avg, pans, noise, transforms, codecs)
+                 args.config, loo, load_avg, pans, noise, transforms, codecs, overlays)
     print(f"wrote {args.out}")
     write_roc_figure(Path(args.out).with_name("real-roc.png"), rows)
     return 0
@@ -804,7 +854,7 @@ def write_roc_figure(path: Path, rows) -> None:
 
 def write_report(path: Path, rows, have_trackpy: bool, total: float, variants=(),
                  config_path=None, loo=(), load_avg: float = float("nan"), pans=(),
-                 noise=(), transforms=(), codecs=()) -> None:
+                 noise=(), transforms=(), codecs=(), overlays=()) -> None:
     today = datetime.date.today().isoformat()
     cores = os.cpu_count() or 1
     busy = ": other jobs were running, so frames/s are noisy" if load_avg > 0.5 * cores else ""
@@ -1006,6 +1056,20 @@ def write_report(path: Path, rows, have_trackpy: bool, total: float, variants=()
             ch = [r["change"] for _, k, r in codecs if k == kind]
             lines.append(f"{kind}: mean absolute change per pixel {min(ch):.2f}-{max(ch):.2f} "
                          "grey levels over the sequences.")
+    if overlays:
+        lines += [
+            "",
+            "## 9. The sequences with a burned-in overlay",
+            "",
+            "Each sequence with what a gimbal's video shows burned in (`overlaid`), in the "
+            "frames' brightest value: a time stamp and two angles in the bottom rows, their "
+            "digits new every frame, and a reticle at the centre. Run with the defaults "
+            "(`overlay`) and with the text's rows excluded (`overlay excluded`: "
+            "`--exclude 0,H-max(16,H/12),W,H`, `overlay_band`, the reticle left in), the "
+            "setting a user gives for their sensor's symbology. Goal as in section 1.",
+            "",
+        ]
+        lines += _by_column(overlays, OVERLAID, str)
     lines += ["", f"Whole benchmark: {total:.0f} s.", ""]
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
@@ -1014,7 +1078,7 @@ def write_report(path: Path, rows, have_trackpy: bool, total: float, variants=()
 
 
 def _by_column(rows, keys, label) -> list[str]:
-    """A table with one group of columns per key (sections 6 to 8): ``rows`` of (name,
+    """A table with one group of columns per key (sections 6 to 9): ``rows`` of (name,
     key, irdetect's row), ``label(key)`` naming each group; then the totals per key."""
     lines = [
         "| sequence | " + " | ".join(
