@@ -275,7 +275,7 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
                                     matched, int(s), config.correlate.tolerance,
                                     reader.offsets[s:s + cc.length].copy(), peaks,
                                     SUPPORT_GATE * config.frame.sigma,
-                                    config.operating.false_rate))
+                                    config.operating.false_rate, params.exclude))
             log.debug("combined frame %d (frames %d-%d): %d candidate pixels, %d fused points",
                       k, s, s + cc.length - 1, n_pixels, len(cand))
             if k >= N_CORRELATE - 1:

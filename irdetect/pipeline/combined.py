@@ -264,8 +264,10 @@ class Pending:
 
     def __init__(self, table: np.ndarray, dp_length: int = 0, matched=None, start: int = 0,
                  tolerance: float = 5.0, camera=None, peaks=None, radius: float = 3.0,
-                 false_rate: float = 0.0):
+                 false_rate: float = 0.0, exclude=None):
         self.table = table
+        # the excluded pixels (H, W) or None: no clutter sample of the operating point
+        self.exclude = exclude
         self.false_rate = false_rate  # the operating point's clutter rate (0: none)
         self.peaks = peaks          # the per-frame path's peaks of the window (or None)
         self.radius = radius        # a peak this close to a detection's track supports it
@@ -383,7 +385,8 @@ class Pending:
         along = track_mean(det, [(p.start, p.matched) for p in blocks], mid)
         det["significance"] = significance(integrated, along, det["x"], det["y"])
         if self.false_rate > 0:
-            det["level"] = map_threshold(integrated[0], self.false_rate, frames)
+            det["level"] = map_threshold(self._scene_only(integrated[0]), self.false_rate,
+                                         frames)
         if scene is not None and scene.any():       # band 2 ran: the camera moved
             n = len(self.matched)                   # the map in the image of the middle
             ref = 0.5 * (self.camera[(n - 1) // 2] + self.camera[n // 2])
@@ -392,9 +395,15 @@ class Pending:
             det["significance"][scene] = significance(moved, along[scene], det["x"][scene],
                                                       det["y"][scene])
             if self.false_rate > 0:
-                det["level"][scene] = np.fmax(det["level"][scene],
-                                              map_threshold(moved[0], self.false_rate, frames))
+                det["level"][scene] = np.fmax(det["level"][scene], map_threshold(
+                    self._scene_only(moved[0]), self.false_rate, frames))
         return blocks
+
+    def _scene_only(self, z: np.ndarray) -> np.ndarray:
+        """``z`` (H, W) with the excluded pixels (``irdetect.exclude``) at 0: a burned-in
+        overlay's residue is no sample of the clutter the operating level stands for
+        (its changing digits raised daub-data13-a's level from 3 to 17-27 sigmas)."""
+        return z if self.exclude is None else np.where(self.exclude, np.float32(0), z)
 
     def _merge_duplicates(self) -> None:
         """One target split into two fused points, each confirmed by a different segment
