@@ -11,6 +11,8 @@ the noise estimates and the camera's registration run on whole frames); what lie
 excluded pixels is dropped where it would be reported: the combined-frame path's fused
 points and the per-frame path's peaks (``irdetect.pipeline.combined.front``), and the
 tracker's regions (``irdetect.track.pipeline.track``), by the pixel of their position.
+Nor are they clutter samples of the combined-frame path's operating level
+(``Pending._scene_only``): an overlay's changing digits would set it.
 """
 
 from __future__ import annotations
