@@ -183,9 +183,7 @@ def suppress(frames, previous=None, following=None, camera=None, long_past=None,
         raise ValueError(f"samples must be an integer >= 1, got {samples!r}")
     if lead_in not in LEAD_INS:
         raise ValueError(f"lead_in must be one of {LEAD_INS}, got {lead_in!r}")
-    if polarity not in POLARITIES:
-        raise ValueError(f"polarity must be one of {POLARITIES}, got {polarity!r}")
-    if polarity == "dark":
+    if is_dark(polarity):
         frames, previous, following, long_past = (
             None if a is None else bright_up(a) for a in (frames, previous, following, long_past))
     arr = np.asarray(frames)
@@ -260,6 +258,14 @@ def suppress(frames, previous=None, following=None, camera=None, long_past=None,
         for t in range(len(stack)):
             out[t] = kernel(stack[t], int(size), int(guard))
     return out[0] if single else out
+
+
+def is_dark(polarity: str) -> bool:
+    """Whether ``polarity`` (one of POLARITIES) asks for the frames mirrored in grey level
+    (``bright_up``); ValueError for any other value."""
+    if polarity not in POLARITIES:
+        raise ValueError(f"polarity must be one of {POLARITIES}, got {polarity!r}")
+    return polarity == "dark"
 
 
 def bright_up(frames) -> np.ndarray:

@@ -13,7 +13,7 @@ from irdetect import tables
 from irdetect.exclude import excluded, exclusion_mask
 from irdetect.io.sources import FrameSource, check_values
 from irdetect.peaks import STANDARDISE_ERROR, cfar_level, frame_level
-from irdetect.suppress import POLARITIES, bright_up
+from irdetect.suppress import bright_up, is_dark
 from irdetect.track.confirm import ClutterTest
 from irdetect.track.detector import detector_blocks, guided_regions, peak_regions
 from irdetect.track.regions import extract_regions, residual_level
@@ -217,10 +217,7 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
         raise ValueError(f"fraction must lie in (0, 1], got {fraction!r}")
     detector = regions == "detector"
     # the top-hat regions take the frames mirrored as the detector's suppression does
-    polarity = (suppression or {}).get("polarity", "bright")
-    if polarity not in POLARITIES:
-        raise ValueError(f"polarity must be one of {POLARITIES}, got {polarity!r}")
-    dark = polarity == "dark"
+    dark = is_dark((suppression or {}).get("polarity", "bright"))
     level, guided = 0.0, None
     if detector:
         if tile < 1 or int(tile) != tile:
