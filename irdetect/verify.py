@@ -115,14 +115,53 @@ def matched_frame(residual, smooth: float, out: np.ndarray | None = None) -> np.
     return f
 
 
-def standardise(frames, tile: int = 32) -> list:
+def quantisation_floor(dtype, smooth: float) -> float:
+    """The noise scale of a matched residual that its frames' quantisation alone gives.
+
+    Integer frames hold each value to within half a grey level: a uniform error of
+    standard deviation 1 / sqrt(12) grey levels per pixel, which the matched filter (a
+    Gaussian of ``smooth`` px) scales by its kernel's L2 norm (about 1 / (2 sqrt(pi)
+    ``smooth``)). A residual whose measured scale falls below this holds no information
+    at that level: a lossy video codec copies the blocks of a still scene from frame to
+    frame bit for bit, and an 8-bit recording of a quiet scene repeats its grey levels,
+    so that 1.4826 MAD of a tile is 0.
+
+    Parameters
+    ----------
+    dtype : numpy dtype
+        The frames' type as read (before any conversion).
+    smooth : float
+        Sigma (px) of the matched filter's Gaussian; 0: none.
+
+    Returns
+    -------
+    float
+        The floor in grey levels: 0.289 x the kernel's L2 norm for integer frames (0.143
+        at ``smooth`` 0.6, 0.081 at 1), 0 for float frames (their quantisation is not
+        known).
+    """
+    if not np.issubdtype(np.dtype(dtype), np.integer):
+        return 0.0
+    if smooth <= 0:
+        return float(np.sqrt(1 / 12))
+    side = 2 * int(np.ceil(4 * smooth)) + 1
+    delta = np.zeros((side, side), np.float32)
+    delta[side // 2, side // 2] = 1.0
+    kernel = cv2.GaussianBlur(delta, (0, 0), float(smooth), borderType=cv2.BORDER_REFLECT)
+    return float(np.sqrt(1 / 12) * np.sqrt(np.sum(kernel.astype(np.float64) ** 2)))
+
+
+def standardise(frames, tile: int = 32, floor: float = 0.0) -> list:
     """Divide a window's matched frames by their local robust noise scale (in place).
 
     ``frames``: sequence of (H, W) float32 matched frames of one window. The scale is
     1.4826 MAD per ``tile`` x ``tile`` block over every 3rd frame on a 2-px grid, bilinear
-    between block centres, floored at a quarter of the median block's; a frame smaller
-    than 2 tiles gets one scale. Structured clutter (cloud edges) then counts in units of
-    its own residual level, as the CFAR of ``irdetect.detect`` does per combined frame.
+    between block centres, floored at a quarter of the median block's and at ``floor``
+    (grey levels: ``quantisation_floor`` of integer frames); a frame smaller than 2 tiles
+    gets one scale. Structured clutter (cloud edges) then counts in units of its own
+    residual level, as the CFAR of ``irdetect.detect`` does per combined frame. Without
+    ``floor``, an H.264 video's still scene (blocks copied bit for bit: MAD 0 in most
+    tiles) gave local SNRs of 1e3-1e6.
     """
     frames = list(frames)
     if not frames:
@@ -131,7 +170,8 @@ def standardise(frames, tile: int = 32) -> list:
     # every 3rd frame, every 2nd pixel of each tile: (ny, nx, samples)
     sub = tile_samples(np.stack([np.asarray(f) for f in frames[::3]]), tile, 2)
     sc = median_mad_sigma(np.moveaxis(sub, 0, -2).reshape(*sub.shape[1:3], -1))[1]
-    sc = np.maximum(sc, max(0.25 * float(np.median(sc)), float(np.finfo(np.float32).tiny)))
+    sc = np.maximum(sc, max(0.25 * float(np.median(sc)), float(floor),
+                            float(np.finfo(np.float32).tiny)))
     inv = tile_map(1.0 / sc, h, w)
     for f in frames:
         np.multiply(f, inv, out=f)

@@ -48,7 +48,7 @@ from irdetect.peaks import RING_PX, frame_peaks
 from irdetect.suppress import (camera_moves, future_frames, past_frames,
                                prefer_registered, suppress)
 from irdetect.track.regions import REGION
-from irdetect.verify import matched_frame, standardise
+from irdetect.verify import matched_frame, quantisation_floor, standardise
 
 #: the suppressor's settings the tracker uses unless given (``irdetect.config.SuppressConfig``)
 SUPPRESS_DEFAULTS = dict(method="auto", size=9, guard=1, history=12, gap=8, tolerance=1,
@@ -103,6 +103,8 @@ def detector_blocks(frames, *, length: int = 12, psf: float = 1.0, tile: int = 3
     reader = Reader(frames, past_frames(**sp), length, max(max(ahead), back),
                     camera=sp["method"] in ("auto", "registered"))
     scene = np.zeros((n, 2))            # the offsets the tracks' scene coordinates take
+    dtype = frames.dtype if hasattr(frames, "dtype") else np.asarray(frames[:1]).dtype
+    floor = quantisation_floor(dtype, psf)
     for s, extra in zip(starts, ahead):
         stop = min(n, s + length)
         if s == 0 and back and stop < n:
@@ -135,7 +137,7 @@ def detector_blocks(frames, *, length: int = 12, psf: float = 1.0, tile: int = 3
             scene[s:stop] = before + (raw_off[-(stop - s):] - (raw_off[0] if s else 0.0))
         else:
             scene[s:stop] = before
-        standardise([matched_frame(r, psf, out=r) for r in residual], tile)
+        standardise([matched_frame(r, psf, out=r) for r in residual], tile, floor)
         yield s, residual, scene[s:stop].copy()
 
 
