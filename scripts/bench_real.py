@@ -51,7 +51,9 @@ Section 7 (transformed) runs the defaults on each sequence mirrored, reversed in
 half the frame rate and at half the size (``transformed``): recordings of the same scenes
 that no setting was chosen on.
 Section 8 (compressed) runs the defaults on each sequence as a lossy file delivers it
-(``compressed``): every frame a JPEG of quality 75, and an MPEG-4 video.
+(``compressed``): every frame a JPEG of quality 75, an MPEG-4 video and an H.264 video
+(the last with imageio-ffmpeg installed, ``pip install imageio-ffmpeg``: not an irdetect
+dependency; without it those rows are left out with a note).
 Section 9 (overlaid) runs each sequence with a time stamp and a reticle burned in
 (``overlaid``), with the defaults and with the text's rows excluded (``exclude``).
 """
@@ -63,6 +65,7 @@ import dataclasses
 import datetime
 import math
 import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -271,14 +274,32 @@ def transformed(frames, truth, kind: str, gate: float):
 
 
 #: section 8: each sequence as a lossy file delivers it (``compressed``)
-CODECS = ("JPEG 75", "MPEG-4 video")
+CODECS_BASE = ("JPEG 75", "MPEG-4 video")
+
+
+def _ffmpeg() -> str | None:
+    """The ffmpeg binary of imageio-ffmpeg (it has libx264), or None when that package is
+    not installed (``pip install imageio-ffmpeg``: a benchmark's, not irdetect's)."""
+    try:
+        import imageio_ffmpeg
+    except ImportError:
+        return None
+    return imageio_ffmpeg.get_ffmpeg_exe()
+
+
+FFMPEG = _ffmpeg()
+#: section 8's codecs: the H.264 rows need imageio-ffmpeg (opencv-python-headless has no
+#: H.264 encoder); without it they are left out with a note
+CODECS = CODECS_BASE + (("H.264 video",) if FFMPEG else ())
 
 
 def compressed(frames, truth, kind: str, gate: float):
     """(frames, truth, gate) of an 8-bit sequence as ``kind`` of CODECS delivers it:
     every frame a JPEG of quality 75 (``cv2.imencode``: MATLAB's ``VideoWriter`` writes
-    its default profile, Motion JPEG AVI, so), or an MPEG-4 part 2 video (OpenCV's
-    ``mp4v`` encoder at its default bit rate) read back by irdetect's video reader."""
+    its default profile, Motion JPEG AVI, so), an MPEG-4 part 2 video (OpenCV's ``mp4v``
+    encoder at its default bit rate), or an H.264 video (libx264 at its defaults: CRF 23,
+    preset medium, a key frame every 250 frames; 4:2:0 YUV, as cameras and players
+    write it), each read back by irdetect's video reader."""
     frames = np.asarray(frames)
     if frames.dtype != np.uint8:
         raise ValueError(f"compressed() takes 8-bit frames, got {frames.dtype}")
@@ -294,6 +315,16 @@ def compressed(frames, truth, kind: str, gate: float):
             for f in frames:
                 writer.write(f)
             writer.release()
+            with open_sequence(path) as src:
+                return src[0:len(src)], truth, gate
+    if kind == "H.264 video" and FFMPEG:
+        n, h, w = frames.shape
+        with tempfile.TemporaryDirectory() as folder:
+            path = os.path.join(folder, "clip.mp4")
+            subprocess.run([FFMPEG, "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "gray",
+                            "-s", f"{w}x{h}", "-r", "25", "-i", "-", "-c:v", "libx264",
+                            "-pix_fmt", "yuv420p", "-threads", "1", path],
+                           input=np.ascontiguousarray(frames).tobytes(), check=True)
             with open_sequence(path) as src:
                 return src[0:len(src)], truth, gate
     raise ValueError(f"unknown codec {kind!r}")
@@ -776,7 +807,8 @@ def main(argv=None) -> int:
                     help="skip section 7 (the sequences mirrored, reversed, at half the "
                     "frame rate and at half the size)")
     ap.add_argument("--no-codecs", action="store_true",
-                    help="skip section 8 (the sequences as JPEG frames and MPEG-4 video)")
+                    help="skip section 8 (the sequences as JPEG frames, MPEG-4 and H.264 "
+                         "video)")
     ap.add_argument("--no-overlay", action="store_true",
                     help="skip section 9 (the sequences with a burned-in overlay)")
     args = ap.parse_args(argv)
@@ -1045,12 +1077,15 @@ def write_report(path: Path, rows, have_trackpy: bool, total: float, variants=()
             "",
             "Each sequence as a lossy file delivers it (`compressed`): every frame a JPEG "
             "of quality 75 (MATLAB's `VideoWriter` writes its default profile, Motion JPEG "
-            "AVI, so), and an MPEG-4 part 2 video (OpenCV's `mp4v` encoder at its default "
-            "bit rate) read back through irdetect's video reader. The mean absolute change "
-            "per pixel is given under the table. None of irdetect's settings was chosen on "
-            "these clips. Goal as in section 1.",
+            "AVI, so), an MPEG-4 part 2 video (OpenCV's `mp4v` encoder at its default "
+            "bit rate) and an H.264 video (libx264 at its defaults, CRF 23, 4:2:0 YUV, "
+            "through imageio-ffmpeg's ffmpeg), each read back through irdetect's video "
+            "reader. The mean absolute change per pixel is given under the table. None of "
+            "irdetect's settings was chosen on these clips. Goal as in section 1.",
             "",
         ]
+        if not FFMPEG:
+            lines += ["(H.264 left out: imageio-ffmpeg is not installed.)", ""]
         lines += _by_column(codecs, CODECS, str)
         for kind in CODECS:
             ch = [r["change"] for _, k, r in codecs if k == kind]
