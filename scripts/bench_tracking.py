@@ -546,7 +546,8 @@ none of the tracker's settings was chosen on them. At the goal: {", ".join(
 ### The folders compressed
 
 The real folders as lossy files deliver them (`bench_real.compressed`: the clips of
-section 8 of docs/results/real.md; every frame a JPEG of quality 75, and an MPEG-4 video),
+section 8 of docs/results/real.md; every frame a JPEG of quality 75, an MPEG-4 video and,
+with imageio-ffmpeg installed, an H.264 video),
 tracked with the defaults; none of the tracker's settings was chosen on them. At the
 goal: {", ".join(f"{codec_goal[k]} of {len(codec_rows)} ({k})" for k in CODECS)}.
 
