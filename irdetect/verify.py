@@ -115,33 +115,37 @@ def matched_frame(residual, smooth: float, out: np.ndarray | None = None) -> np.
     return f
 
 
-def quantisation_floor(dtype, smooth: float) -> float:
+def quantisation_floor(frame, smooth: float) -> float:
     """The noise scale of a matched residual that its frames' quantisation alone gives.
 
-    Integer frames hold each value to within half a grey level: a uniform error of
-    standard deviation 1 / sqrt(12) grey levels per pixel, which the matched filter (a
-    Gaussian of ``smooth`` px) scales by its kernel's L2 norm (about 1 / (2 sqrt(pi)
-    ``smooth``)). A residual whose measured scale falls below this holds no information
-    at that level: a lossy video codec copies the blocks of a still scene from frame to
-    frame bit for bit, and an 8-bit recording of a quiet scene repeats its grey levels,
-    so that 1.4826 MAD of a tile is 0.
+    Frames of whole grey levels hold each value to within half a grey level: a uniform
+    error of standard deviation 1 / sqrt(12) grey levels per pixel, which the matched
+    filter (a Gaussian of ``smooth`` px) scales by its kernel's L2 norm (about
+    1 / (2 sqrt(pi) ``smooth``)). A residual whose measured scale falls below this holds
+    no information at that level: a lossy video codec copies the blocks of a still scene
+    from frame to frame bit for bit, and an 8-bit recording of a quiet scene repeats its
+    grey levels, so that 1.4826 MAD of a tile is 0.
 
     Parameters
     ----------
-    dtype : numpy dtype
-        The frames' type as read (before any conversion).
+    frame : ndarray of shape (H, W)
+        One frame as read: integer frames, and float frames whose values are all whole
+        (a MATLAB ``double`` of an 8-bit video), are quantised to whole grey levels.
     smooth : float
         Sigma (px) of the matched filter's Gaussian; 0: none.
 
     Returns
     -------
     float
-        The floor in grey levels: 0.289 x the kernel's L2 norm for integer frames (0.143
-        at ``smooth`` 0.6, 0.081 at 1), 0 for float frames (their quantisation is not
-        known).
+        The floor in grey levels: 0.289 x the kernel's L2 norm for whole grey levels
+        (0.143 at ``smooth`` 0.6, 0.081 at 1), 0 for float frames of other values (their
+        quantisation is not known).
     """
-    if not np.issubdtype(np.dtype(dtype), np.integer):
-        return 0.0
+    f = np.asarray(frame)
+    if not np.issubdtype(f.dtype, np.integer):
+        values = f[np.isfinite(f)]
+        if not values.size or not np.array_equal(values, np.round(values)):
+            return 0.0
     if smooth <= 0:
         return float(np.sqrt(1 / 12))
     side = 2 * int(np.ceil(4 * smooth)) + 1

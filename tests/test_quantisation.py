@@ -22,13 +22,17 @@ def test_floor_is_the_scale_of_matched_quantisation_noise(smooth):
     rng = np.random.default_rng(0)
     q = rng.uniform(-0.5, 0.5, (512, 512)).astype(np.float32)
     measured = float(matched_frame(q, smooth)[16:-16, 16:-16].std())
-    assert quantisation_floor(np.uint8, smooth) == pytest.approx(measured, rel=0.03)
-    assert quantisation_floor(np.uint16, smooth) == quantisation_floor(np.int32, smooth)
+    frame = np.full((8, 8), 100, np.uint8)
+    assert quantisation_floor(frame, smooth) == pytest.approx(measured, rel=0.03)
+    assert quantisation_floor(frame.astype(np.uint16), smooth) == \
+        quantisation_floor(frame.astype(np.int32), smooth)
 
 
-def test_float_frames_have_no_floor():
-    assert quantisation_floor(np.float32, 0.6) == 0.0
-    assert quantisation_floor(np.float64, 0.0) == 0.0
+def test_float_frames_of_whole_grey_levels_have_the_floor_and_others_none():
+    whole = np.arange(64, dtype=np.float64).reshape(8, 8)     # a MATLAB double of 8 bits
+    assert quantisation_floor(whole, 0.6) == quantisation_floor(whole.astype(np.uint8), 0.6)
+    assert quantisation_floor(whole + 0.25, 0.6) == 0.0          # a radiometric export
+    assert quantisation_floor(np.full((4, 4), np.nan, np.float32), 0.6) == 0.0
 
 
 def test_standardise_floors_a_tile_without_measured_noise():
@@ -39,7 +43,7 @@ def test_standardise_floors_a_tile_without_measured_noise():
     frames[5, 40, 50] = 1.0
     matched = [matched_frame(f, 0.6) for f in frames]
     bare = standardise([m.copy() for m in matched])
-    floor = quantisation_floor(np.uint8, 0.6)
+    floor = quantisation_floor(np.zeros((2, 2), np.uint8), 0.6)
     floored = standardise([m.copy() for m in matched], floor=floor)
     assert bare[5].max() > 1e30
     assert floored[5].max() == pytest.approx(matched[5].max() / floor, rel=1e-5)
@@ -68,8 +72,9 @@ def _with_target(frames, amplitude=25.0):
     return np.clip(np.round(out), 0, 255).astype(np.uint8)
 
 
-def test_process_reports_sane_local_snrs_on_a_bit_exact_still_scene():
-    frames = _with_target(_still_scene())
+@pytest.mark.parametrize("dtype", [np.uint8, np.float64])
+def test_process_reports_sane_local_snrs_on_a_bit_exact_still_scene(dtype):
+    frames = _with_target(_still_scene()).astype(dtype)
     out = detect_sequence(frames)
     det = out["detections"]
     assert len(det) >= 3                        # the target, in most of its 4 windows

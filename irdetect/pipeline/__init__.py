@@ -36,6 +36,7 @@ from irdetect.pipeline.fusion import SUPPORT_GATE, finish, initiate_tracks
 from irdetect.pipeline.reader import Reader
 from irdetect.pipeline.timing import Ready, lap
 from irdetect.suppress import STILL_PX, future_frames, past_frames
+from irdetect.verify import quantisation_floor
 
 __all__ = ["CHUNK_TABLES", "N_CORRELATE", "check_config", "check_frames", "detect_sequence",
            "finish", "fit_config", "initiate_tracks", "iter_results", "min_frames",
@@ -169,6 +170,7 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
     starts = window_starts(n_frames, length=cc.length, step=cc.step)
     params = StageParams(config)
     params.exclude = exclusion_mask(config.exclude, shape[1:])
+    params.floor = quantisation_floor(frames[0:1][0], params.psf) if n_frames else 0.0
     # the first window(s) look ahead: their first frames have no past (``lead_in``)
     ahead = [future_frames(start=int(s), stop=int(s) + cc.length, **params.suppress)
              for s in starts]

@@ -27,8 +27,7 @@ from irdetect.pipeline.fusion import (along_track, dilated_sum, registered_mean,
                                       track_values)
 from irdetect.pipeline.timing import lap
 from irdetect.suppress import suppress
-from irdetect.verify import (DP_LEADS, Evidence, matched_frame, noise_level,
-                             quantisation_floor, standardise)
+from irdetect.verify import DP_LEADS, Evidence, matched_frame, noise_level, standardise
 
 
 def correlate_windows(triple, cc, params: "StageParams", timings: dict | None):
@@ -147,6 +146,9 @@ class StageParams:
         # the excluded pixels (irdetect.exclude), set by the driver once the frames'
         # size is known
         self.exclude = None
+        # the matched residual's noise scale at least that of the frames' quantisation
+        # (``irdetect.verify.quantisation_floor``), set by the driver from the first frame
+        self.floor = 0.0
 
 
 
@@ -185,8 +187,7 @@ def front(block, previous, params: StageParams, timings: dict | None, following=
     if params.matched:
         # the residuals become the matched frames in place (no second window of frames)
         smooth = 0.0 if presmoothed else params.psf
-        standardise([matched_frame(r, smooth, out=r) for r in residual],
-                    floor=quantisation_floor(block.dtype, params.psf))
+        standardise([matched_frame(r, smooth, out=r) for r in residual], floor=params.floor)
         matched = residual
     del residual
     t = lap(timings, "combine", t)

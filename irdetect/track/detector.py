@@ -103,8 +103,7 @@ def detector_blocks(frames, *, length: int = 12, psf: float = 1.0, tile: int = 3
     reader = Reader(frames, past_frames(**sp), length, max(max(ahead), back),
                     camera=sp["method"] in ("auto", "registered"))
     scene = np.zeros((n, 2))            # the offsets the tracks' scene coordinates take
-    dtype = frames.dtype if hasattr(frames, "dtype") else np.asarray(frames[:1]).dtype
-    floor = quantisation_floor(dtype, psf)
+    floor = quantisation_floor(frames[0:1][0], psf)
     for s, extra in zip(starts, ahead):
         stop = min(n, s + length)
         if s == 0 and back and stop < n:
