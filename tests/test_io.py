@@ -145,3 +145,24 @@ def test_hdf5_read_ahead_is_a_chunk_only_when_compressed(tmp_path):
         assert z.block_frames == 64
         assert plain.block_frames == HDF5Source.PLAIN_BLOCK_BYTES // (512 * 640 * 2) == 12
         np.testing.assert_array_equal(plain[70:80], z[70:80])
+
+
+@pytest.mark.parametrize("fourcc, suffix, tag, lossy", [("FFV1", "avi", "ffv1", False),
+                                                         ("mp4v", "mp4", "fmp4", True),
+                                                         ("MJPG", "avi", "mjpg", True)])
+def test_info_names_a_video_codec_and_whether_it_is_lossy(tmp_path, cli, fourcc, suffix, tag,
+                                                          lossy):
+    path = tmp_path / f"v.{suffix}"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), 10, (48, 32), False)
+    if not writer.isOpened():
+        pytest.skip(f"this OpenCV build writes no {fourcc}")
+    for value in range(0, 90, 10):
+        writer.write(np.full((32, 48), value, np.uint8))
+    writer.release()
+    with open_sequence(path) as src:
+        assert src.codec == tag
+    code, out, _ = cli("info", path)
+    assert code == 0
+    line = next(x for x in out.splitlines() if x.strip().startswith("codec"))
+    assert line.split()[1].rstrip(":") == tag
+    assert ("lossy" in line) == lossy

@@ -10,6 +10,7 @@ import h5py
 from irdetect.commands import DATASET_HELP, SEQUENCE_KINDS
 from irdetect.errors import InputError, check_input_file
 from irdetect.io import open_sequence, read_results
+from irdetect.io.sources import LOSSY_CODECS
 
 RESULT_TABLES = ("detections", "candidates", "segments", "tracks", "track_points", "scans")
 
@@ -47,6 +48,12 @@ def describe(path, dataset=None) -> list[str]:
                  f"  frame 0 values {first.min()}..{first.max()}"]
         if src.frame_rate:
             lines.append(f"  frame rate {src.frame_rate:g} Hz")
+        codec = getattr(src, "codec", None)
+        if codec:
+            lines.append(f"  codec {codec}" + (
+                ": lossy, a still scene's faint structure changes in steps that can read as "
+                "dim slow targets; prefer the sensor's own frames (docs/real.md, \"The "
+                "sequences compressed\")" if codec in LOSSY_CODECS else ""))
         if src.truth is not None:
             targets = len(set(src.truth["target"].tolist()))
             lines.append(f"  truth: {len(src.truth)} rows, {targets} target(s)")

@@ -442,10 +442,21 @@ class ImageFolderSource(FrameSource):
         return out
 
 
+#: the codecs (OpenCV's FOURCC tag of a decoded stream, lower case) that discard
+#: information: a still scene's faint structure changes in steps where they refresh it,
+#: which the combined-frame path can read as dim slow targets (docs/real.md, "The
+#: sequences compressed")
+LOSSY_CODECS = frozenset({"fmp4", "mp4v", "xvid", "divx", "dx50", "h264", "avc1", "x264",
+                          "hevc", "hvc1", "hev1", "h265", "vp80", "vp90", "vp09", "av01",
+                          "mjpg", "mpg1", "mpg2", "wmv1", "wmv2", "wmv3", "theo"})
+
+
 class VideoSource(FrameSource):
     """Frames of a video file decoded by OpenCV, converted to 8-bit grey.
 
     Decoding is sequential; reading frames in order (as ``windows`` does) costs one pass.
+    ``codec`` is the stream's FOURCC tag as OpenCV reports it (lower case, e.g. "h264",
+    "fmp4" for MPEG-4 part 2, "ffv1"), or None.
     """
 
     def __init__(self, path):
@@ -465,8 +476,13 @@ class VideoSource(FrameSource):
         first = _grey(first)
         self.shape = (count,) + first.shape
         self.dtype = first.dtype
-        rate = cv2.VideoCapture(self.path).get(cv2.CAP_PROP_FPS)
+        probe = cv2.VideoCapture(self.path)
+        rate = probe.get(cv2.CAP_PROP_FPS)
+        tag = int(probe.get(cv2.CAP_PROP_FOURCC))
+        probe.release()
         self.frame_rate = float(rate) if rate and rate > 0 else None
+        self.codec = (tag.to_bytes(4, "little").decode("latin-1").strip().lower()
+                      if tag > 0 else None)
         self._cap = None
         self._next = 0
 
