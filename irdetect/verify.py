@@ -161,11 +161,11 @@ def standardise(frames, tile: int = 32, floor: float = 0.0) -> list:
     ``frames``: sequence of (H, W) float32 matched frames of one window. The scale is
     1.4826 MAD per ``tile`` x ``tile`` block over every 3rd frame on a 2-px grid, bilinear
     between block centres, floored at a quarter of the median block's and at ``floor``
-    (grey levels: ``quantisation_floor`` of integer frames); a frame smaller than 2 tiles
-    gets one scale. Structured clutter (cloud edges) then counts in units of its own
-    residual level, as the CFAR of ``irdetect.detect`` does per combined frame. Without
-    ``floor``, an H.264 video's still scene (blocks copied bit for bit: MAD 0 in most
-    tiles) gave local SNRs of 1e3-1e6.
+    (grey levels: ``quantisation_floor`` of frames of whole grey levels); a frame smaller
+    than 2 tiles gets one scale. Structured clutter (cloud edges) then counts in units of
+    its own residual level, as the CFAR of ``irdetect.detect`` does per combined frame.
+    Without ``floor``, an H.264 video's still scene (blocks copied bit for bit: MAD 0 in
+    most tiles) gave local SNRs of 1e3-1e6.
     """
     frames = list(frames)
     if not frames:

@@ -273,10 +273,6 @@ def transformed(frames, truth, kind: str, gate: float):
     raise ValueError(f"unknown transform {kind!r}")
 
 
-#: section 8: each sequence as a lossy file delivers it (``compressed``)
-CODECS_BASE = ("JPEG 75", "MPEG-4 video")
-
-
 def _ffmpeg() -> str | None:
     """The ffmpeg binary of imageio-ffmpeg (it has libx264), or None when that package is
     not installed (``pip install imageio-ffmpeg``: a benchmark's, not irdetect's)."""
@@ -288,9 +284,10 @@ def _ffmpeg() -> str | None:
 
 
 FFMPEG = _ffmpeg()
-#: section 8's codecs: the H.264 rows need imageio-ffmpeg (opencv-python-headless has no
-#: H.264 encoder); without it they are left out with a note
-CODECS = CODECS_BASE + (("H.264 video",) if FFMPEG else ())
+#: section 8: each sequence as a lossy file delivers it (``compressed``); the H.264 rows
+#: need imageio-ffmpeg (opencv-python-headless has no H.264 encoder), without it they are
+#: left out with a note
+CODECS = ("JPEG 75", "MPEG-4 video") + (("H.264 video",) if FFMPEG else ())
 
 
 def compressed(frames, truth, kind: str, gate: float):
@@ -318,7 +315,7 @@ def compressed(frames, truth, kind: str, gate: float):
             with open_sequence(path) as src:
                 return src[0:len(src)], truth, gate
     if kind == "H.264 video" and FFMPEG:
-        n, h, w = frames.shape
+        h, w = frames.shape[1:]
         with tempfile.TemporaryDirectory() as folder:
             path = os.path.join(folder, "clip.mp4")
             subprocess.run([FFMPEG, "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "gray",

@@ -48,12 +48,11 @@ def describe(path, dataset=None) -> list[str]:
                  f"  frame 0 values {first.min()}..{first.max()}"]
         if src.frame_rate:
             lines.append(f"  frame rate {src.frame_rate:g} Hz")
-        codec = getattr(src, "codec", None)
-        if codec:
-            lines.append(f"  codec {codec}" + (
+        if src.codec:
+            lines.append(f"  codec {src.codec}" + (
                 ": lossy, a still scene's faint structure changes in steps that can read as "
                 "dim slow targets; prefer the sensor's own frames (docs/real.md, \"The "
-                "sequences compressed\")" if codec in LOSSY_CODECS else ""))
+                "sequences compressed\")" if src.codec in LOSSY_CODECS else ""))
         if src.truth is not None:
             targets = len(set(src.truth["target"].tolist()))
             lines.append(f"  truth: {len(src.truth)} rows, {targets} target(s)")

@@ -50,6 +50,9 @@ class FrameSource:
         The stored pixel type.
     frame_rate : float or None
         Frames per second, when the file says.
+    codec : str or None
+        A video's codec, its FOURCC tag as OpenCV reports it (lower case: "h264", "fmp4"
+        for MPEG-4 part 2, "ffv1"); None for other inputs.
     truth : structured ndarray or None
         Ground truth (``irdetect.tables.TRUTH``) stored with the sequence, if any.
     """
@@ -58,6 +61,7 @@ class FrameSource:
     shape: tuple[int, int, int]
     dtype: np.dtype
     frame_rate: float | None = None
+    codec: str | None = None
     truth: np.ndarray | None = None
 
     def __len__(self) -> int:
@@ -455,8 +459,6 @@ class VideoSource(FrameSource):
     """Frames of a video file decoded by OpenCV, converted to 8-bit grey.
 
     Decoding is sequential; reading frames in order (as ``windows`` does) costs one pass.
-    ``codec`` is the stream's FOURCC tag as OpenCV reports it (lower case, e.g. "h264",
-    "fmp4" for MPEG-4 part 2, "ffv1"), or None.
     """
 
     def __init__(self, path):
