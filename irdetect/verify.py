@@ -148,11 +148,10 @@ def quantisation_floor(frame, smooth: float) -> float:
             return 0.0
     if smooth <= 0:
         return float(np.sqrt(1 / 12))
-    side = 2 * int(np.ceil(4 * smooth)) + 1
-    delta = np.zeros((side, side), np.float32)
-    delta[side // 2, side // 2] = 1.0
-    kernel = cv2.GaussianBlur(delta, (0, 0), float(smooth), borderType=cv2.BORDER_REFLECT)
-    return float(np.sqrt(1 / 12) * np.sqrt(np.sum(kernel.astype(np.float64) ** 2)))
+    # the 1-D kernel of matched_frame's GaussianBlur (its size for float images); the 2-D
+    # kernel is its outer product, whose L2 norm is the sum of its squares
+    k = cv2.getGaussianKernel(int(round(8 * smooth + 1)) | 1, float(smooth), cv2.CV_64F)
+    return float(np.sqrt(1 / 12) * np.sum(k ** 2))
 
 
 def standardise(frames, tile: int = 32, floor: float = 0.0) -> list:
