@@ -207,6 +207,7 @@ class TrackConfig:
     clutter_speed: float = 1.5
     guided_rate: float = 0.01
     min_shape: float = 0.35
+    three_point: bool = True
     sea_sky: bool = False
     band_above: float = 5.0
     band_below: float = 40.0

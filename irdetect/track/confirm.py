@@ -364,6 +364,8 @@ class ClutterTest:
     def clutter_like(self, track) -> bool:
         """Whether a measured tentative track can be a sample of the clutter: not when it
         passes tests 1 and 2 and moves ``clutter_speed`` or faster (module notes)."""
+        if getattr(track, "three_point", False):
+            return False
         return not (self._moves_unlike_clutter(track)
                     and track.speed >= self.clutter_speed)
 

@@ -37,6 +37,8 @@ _H = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])
 #: a tentative track that ``ClutterTest.significant`` finds still unlike clutter lives up
 #: to this many ``confirm_window``s before it ends unconfirmed (``irdetect.track.confirm``)
 SLOW_LIFE = 2
+#: sigmas of the three-point start's gate on the second difference of its positions
+GATE_CHAIN = 3.0
 
 
 @dataclass
@@ -64,6 +66,7 @@ class Track:
     meas: list = field(default_factory=list)
     clutter: int = 0                  # other regions near its predictions while tentative
     zbar: np.ndarray | None = None    # its last synthetic measurement (x, y)
+    three_point: bool = False         # started from three regions in a line
 
     @property
     def position(self) -> tuple[float, float]:
@@ -77,7 +80,7 @@ class _TrackerBase:
                  gate: float = 4.0, confirm_hits: int = 3, confirm_window: int = 5,
                  max_misses: int = 12, max_tracks: int = 50, init_speed: float = 2.0,
                  feature_memory: float = 0.9, max_birth_area: float = np.inf,
-                 confirm=None):
+                 confirm=None, max_speed: float = 0.0):
         checks = {"frame_interval": frame_interval, "q0": q0, "r": r, "gate": gate,
                   "init_speed": init_speed}
         for name, value in checks.items():
@@ -104,6 +107,10 @@ class _TrackerBase:
         self.init_speed = float(init_speed)
         self.feature_memory = float(feature_memory)
         self.max_birth_area = float(max_birth_area)
+        if not (math.isfinite(max_speed) and max_speed >= 0):
+            raise ValueError(f"max_speed must be a number >= 0, got {max_speed!r}")
+        # three-point starts up to this speed (px/frame; 0: none, ``_three_point_starts``)
+        self.max_speed = float(max_speed)
         # the clutter test of confirmation (``irdetect.track.confirm.ClutterTest``); None:
         # the M-of-N rule alone
         self.confirm = confirm
@@ -193,8 +200,11 @@ class _TrackerBase:
                 t.misses += 1
                 t.merged = 0
                 self._record(t, frame, None, out, coasting=True)
+        blocked = blocked | ~seeds
+        if self.max_speed > 0:
+            blocked |= self._three_point_starts(frame, regions, z, blocked)
         self._manage(frame, out)
-        self._births(frame, regions, z, blocked | ~seeds)
+        self._births(frame, regions, z, blocked)
         return _points(out)
 
     def finish(self) -> np.ndarray:
@@ -361,6 +371,76 @@ class _TrackerBase:
             self._lapsed.append(t)
             return
         t.pending = []
+
+    def _three_point_starts(self, frame: int, regions: np.ndarray, z: np.ndarray,
+                            blocked: np.ndarray) -> np.ndarray:
+        """Start tracks from three regions in a line: a target too fast for a new track's
+        gate (``init_speed``) leaves a one-hit track in each frame it crosses.
+
+        A one-hit tentative track A born two frames ago at p1 (px, the regions'
+        coordinates), one B born last frame at p2 within ``max_speed`` px of it, and a free
+        region of this frame at p3 within GATE sqrt(6) r px of the constant-velocity
+        prediction 2 p2 - p1 (r the regions' position sigma: the second difference of three
+        positions has sigma sqrt(6) r) make one track: A takes the three hits, velocity
+        (p3 - p1) / 2 px/frame, and B ends. The closest predictions are taken first; each
+        track and region is used once. The tracks so started are tested for confirmation
+        as any other.
+
+        Returns
+        -------
+        ndarray of bool, shape (len(regions),)
+            The regions taken.
+        """
+        from scipy.spatial import cKDTree
+
+        taken = np.zeros(len(z), bool)
+        young = [t for t in self.tracks
+                 if not t.confirmed and not t.dead and len(t.meas) == 1]
+        first = [t for t in young if t.born == frame - 2]
+        second = [t for t in young if t.born == frame - 1]
+        free = np.flatnonzero(~blocked & (regions["area"] <= self.max_birth_area))
+        if not first or not second or not len(free):
+            return taken
+        p1 = np.array([t.meas[0][1:3] for t in first])
+        p2 = np.array([t.meas[0][1:3] for t in second])
+        pairs = cKDTree(p2).sparse_distance_matrix(cKDTree(p1), self.max_speed,
+                                                   output_type="ndarray")
+        if not len(pairs):
+            return taken
+        b, a = pairs["i"], pairs["j"]
+        tol = GATE_CHAIN * math.sqrt(6.0 * self.R[0, 0])
+        d, k = cKDTree(z[free]).query(2.0 * p2[b] - p1[a], distance_upper_bound=tol)
+        hit = np.flatnonzero(np.isfinite(d))
+        chains = np.stack([a, b, k])[:, hit[np.argsort(d[hit], kind="stable")]]
+        for row in range(3):            # each track and region once, closest first
+            chains = chains[:, np.sort(np.unique(chains[row], return_index=True)[1])]
+        for ai, bi, ki in chains.T:     # the few starts made
+            self._start_from(first[ai], second[bi], frame, regions[free[ki]])
+            taken[free[ki]] = True
+        return taken
+
+    def _start_from(self, t: Track, other: Track, frame: int, reg) -> None:
+        """``t`` (one hit at p1) takes ``other``'s one hit (p2) and the region ``reg`` of
+        this frame (p3): three hits on a line (``_three_point_starts``)."""
+        (f1, x1, y1), (f2, x2, y2) = t.meas[0][:3], other.meas[0][:3]
+        x3, y3 = float(reg["x"]), float(reg["y"])
+        vx, vy = (x3 - x1) / 2.0, (y3 - y1) / 2.0
+        r2 = self.R[0, 0]
+        t.x = np.array([x3, vx, y3, vy])
+        t.P = np.diag([r2, r2, r2, r2])
+        t.meas = [t.meas[0], other.meas[0],
+                  (frame, x3, y3) + self._offset + (float(reg["contrast"]),)]
+        p = other.pending[0]
+        t.pending = [t.pending[0][:4] + (vx, vy) + t.pending[0][6:],
+                     (f2, t.track_id, x2, y2, vx, vy) + p[6:],
+                     (frame, t.track_id, x3, y3, vx, vy, float(reg["area"]),
+                      float(reg["grey"]), True)]
+        t.zbar = np.array([x3, y3])
+        t.hits, t.misses, t.last_hit = 3, 0, frame
+        t.three_point = True
+        t.grey = (t.grey + other.grey + float(reg["grey"])) / 3.0
+        t.area = (t.area + other.area + float(reg["area"])) / 3.0
+        other.dead = True
 
     def _births(self, frame: int, regions: np.ndarray, z: np.ndarray, blocked: np.ndarray) -> None:
         free = np.flatnonzero(~blocked & (regions["area"] <= self.max_birth_area))
