@@ -2,8 +2,9 @@
 
 Both trackers take, frame after frame, the candidate regions of :mod:`irdetect.track.regions`
 and share one constant-velocity Kalman model and one track management (birth after M-of-N
-confirmation, coasting through misses, death, merging). They differ in association and
-process noise:
+confirmation, coasting through misses, death, merging; beyond the paper, a track also
+started from three regions of three frames on a line, ``max_speed``: a target faster than
+a new track's gate). They differ in association and process noise:
 
 * :class:`FCMPMHTTracker` (Cheng et al.): fuzzy c-means memberships of the regions to the
   predicted tracks over a weighted, normalised feature distance (grey, area, position, and
@@ -27,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
 
 from irdetect import tables
 from irdetect.track.fcm import fcm_memberships
@@ -391,8 +393,6 @@ class _TrackerBase:
         ndarray of bool, shape (len(regions),)
             The regions taken.
         """
-        from scipy.spatial import cKDTree
-
         taken = np.zeros(len(z), bool)
         young = [t for t in self.tracks
                  if not t.confirmed and not t.dead and len(t.meas) == 1]
@@ -568,6 +568,9 @@ class FCMPMHTTracker(_TrackerBase):
         Cap on live tracks (tentative included): bounds the work in a glint storm.
     init_speed : float
         Prior velocity sigma of a new track (pixels / T).
+    max_speed : float
+        Three-point starts up to this speed (px/frame; ``_three_point_starts``); 0: none,
+        a track starts from one region alone (the paper's design).
     feature_memory : float
         Exponential memory of a track's grey and area features.
     max_birth_area : float
