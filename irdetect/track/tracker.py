@@ -422,7 +422,8 @@ class _TrackerBase:
     def _start_from(self, t: Track, other: Track, frame: int, reg) -> None:
         """``t`` (one hit at p1) takes ``other``'s one hit (p2) and the region ``reg`` of
         this frame (p3): three hits on a line (``_three_point_starts``)."""
-        (f1, x1, y1), (f2, x2, y2) = t.meas[0][:3], other.meas[0][:3]
+        x1, y1 = t.meas[0][1:3]
+        f2, x2, y2 = other.meas[0][:3]
         x3, y3 = float(reg["x"]), float(reg["y"])
         vx, vy = (x3 - x1) / 2.0, (y3 - y1) / 2.0
         r2 = self.R[0, 0]
