@@ -61,7 +61,11 @@ A tentative track (``irdetect.track.tracker``) is confirmed only when
    ending unconfirmed after 30 frames and setting the level for the others, no track at
    all). Slower ones stay in it: on the real istd640-seq1-243 bright points that drift 0.2
    px/frame against the scene (parallax over city blocks) pass tests 1 and 2, and their
-   scores are what keeps the next such point out.
+   scores are what keeps the next such point out. Nor is a track started from three
+   regions in a line (``irdetect.track.tracker``, three-point starts, its ``three_point``):
+   such starts are a selection of their own, often made of a target's hits with a
+   clutter region, and in the sample their scores raised the level over slow targets
+   (bench_unseen scene 39: MOTA 0.59 -> 0.39).
    Bright structure that stays put (m < 1) then no longer sets the level a clearly moving
    track must reach (istd640-seq3-237: static clutter scoring up to 49 put the level at
    106-150 over a target of 30 moving 8 units in 11 frames), while a track that moves no
@@ -363,7 +367,8 @@ class ClutterTest:
 
     def clutter_like(self, track) -> bool:
         """Whether a measured tentative track can be a sample of the clutter: not when it
-        passes tests 1 and 2 and moves ``clutter_speed`` or faster (module notes)."""
+        passes tests 1 and 2 and moves ``clutter_speed`` or faster, nor when it was started
+        from three regions in a line (its ``three_point``; module notes)."""
         if getattr(track, "three_point", False):
             return False
         return not (self._moves_unlike_clutter(track)
