@@ -144,9 +144,9 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
         (``irdetect.track.tracker``, three-point starts): a target faster than a new
         track's gate (``init_speed``) leaves a one-hit track in each frame (a fast target
         whose camera cannot be measured: bench_unseen's scenes 41, 60, 70 at 6-12 px/frame
-        in the image, MOTA 0.38-0.51 without, 1.00 with). Such tracks are tested as any
-        other but are no sample of the clutter (their extra hits' scores raised its level
-        over slow targets). False: one-region starts alone (the paper's design).
+        in the image, MOTA 0.38-0.51 without, 0.995-1.000 with). Such tracks are tested
+        as any other but are no sample of the clutter (their extra hits' scores raised its
+        level over slow targets). False: one-region starts alone (the paper's design).
     sea_sky : bool
         Find the sea-sky line in every frame and search only the band from ``band_above``
         pixels above it to ``band_below`` pixels below it (maritime scenes; off for sky or
