@@ -7,7 +7,9 @@ confirmed track's gate searched again at a lower level; the maritime and paper p
 top-hat, a CFAR threshold, connected components, optionally only near the sea-sky line)
 are associated to the tracks by fuzzy c-means memberships and followed by a
 constant-velocity filter with adaptive process noise (Cheng et al.; docs/tracking.md), or
-by the CV Kalman + GNN baseline (--method gnn).
+by the CV Kalman + GNN baseline (--method gnn). A track starts from a region no track
+takes, or (the default profile) from three on a line in three frames: a target too fast
+for a new track's gate.
 Writes /track_points (one row per track per frame, image coordinates), /tracks (one row
 per track) and, with the detector's regions, /camera (the camera's offset of every frame
 that the tracks' scene coordinates took: held where the image-fixed background was taken
