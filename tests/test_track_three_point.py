@@ -89,3 +89,27 @@ def test_a_fast_target_over_an_unmeasurable_camera_is_followed_from_its_first_fr
     assert len(summary) == 1 and r["mota"] > 0.9 and r["fp"] == 0
     points, summary = track(frames, three_point=False)
     assert clear_mot(truth, points, gate=3.0)["mota"] < 0.5
+
+
+def test_dense_random_clutter_makes_no_track_and_bounded_work():
+    # 150 random regions per frame (0.003 per px^2) with the clutter test: no track, and
+    # live tracks stay capped. A start needs one-hit tracks that found no region in their
+    # gates, which such clutter rarely leaves (1 start in 40 frames here; 0-2 at 30-100
+    # regions per frame): the starts add no chance tracks where one-region starts do not
+    rng = np.random.default_rng(4)
+    h, w = SHAPE
+    test = ClutterTest(SHAPE, false_tracks=0.001, floor=1.0 / (h * w), window=30,
+                       score_floor=4.2, learn=12)
+    tracker = FCMPMHTTracker(max_speed=16.0, max_tracks=200, confirm=test,
+                             confirm_window=30)
+    for k in range(40):
+        n = 150
+        regs = np.zeros(n, REGION)
+        regs["x"], regs["y"] = rng.uniform(0, w, n), rng.uniform(0, h, n)
+        regs["area"], regs["grey"] = 3, rng.uniform(4.2, 8.0, n)
+        regs["contrast"], regs["shape"] = regs["grey"], 1.0
+        regs["bx"], regs["by"] = regs["x"].astype(int) - 1, regs["y"].astype(int) - 1
+        regs["bw"] = regs["bh"] = 3
+        tracker.step(k, regs, SHAPE)
+        assert len(tracker.tracks) <= 200
+    assert len(tracker.finish()) == 0
