@@ -111,8 +111,10 @@ class _TrackerBase:
         self.max_birth_area = float(max_birth_area)
         if not (math.isfinite(max_speed) and max_speed >= 0):
             raise ValueError(f"max_speed must be a number >= 0, got {max_speed!r}")
-        # three-point starts up to this speed (px/frame; 0: none, ``_three_point_starts``)
+        # three-point starts up to this speed (px/frame; 0: none, ``_three_point_starts``),
+        # their gate on the second difference of three positions (px)
         self.max_speed = float(max_speed)
+        self.chain_gate = GATE_CHAIN * math.sqrt(6.0) * float(r)
         # the clutter test of confirmation (``irdetect.track.confirm.ClutterTest``); None:
         # the M-of-N rule alone
         self.confirm = confirm
@@ -408,8 +410,8 @@ class _TrackerBase:
         if not len(pairs):
             return taken
         b, a = pairs["i"], pairs["j"]
-        tol = GATE_CHAIN * math.sqrt(6.0 * self.R[0, 0])
-        d, k = cKDTree(z[free]).query(2.0 * p2[b] - p1[a], distance_upper_bound=tol)
+        d, k = cKDTree(z[free]).query(2.0 * p2[b] - p1[a],
+                                      distance_upper_bound=self.chain_gate)
         hit = np.flatnonzero(np.isfinite(d))
         chains = np.stack([a, b, k])[:, hit[np.argsort(d[hit], kind="stable")]]
         for row in range(3):            # each track and region once, closest first
