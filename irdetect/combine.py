@@ -13,12 +13,22 @@ import numpy as np
 PROJECTIONS = ("max", "mean", "sum", "dp")
 
 
-def window_starts(n_frames: int, *, length: int = 12, step: int = 12) -> np.ndarray:
-    """First frame of every full window ``[s, s + length)`` inside ``n_frames`` frames."""
+def window_starts(n_frames: int, *, length: int = 12, step: int = 12,
+                  tail: bool = False) -> np.ndarray:
+    """First frame of every full window ``[s, s + length)`` inside ``n_frames`` frames.
+
+    The windows start every ``step`` frames from frame 0 (the paper's combined frames);
+    with ``tail``, when they leave frames after the last one, one more window covers the
+    sequence's last ``length`` frames, ``[n_frames - length, n_frames)`` (it overlaps
+    the window before it), so that every frame lies in a window.
+    """
     _check(length, step)
     if n_frames < length:
         return np.zeros(0, dtype=np.int64)
-    return np.arange(0, n_frames - length + 1, step, dtype=np.int64)
+    starts = np.arange(0, n_frames - length + 1, step, dtype=np.int64)
+    if tail and starts[-1] + length < n_frames:
+        starts = np.append(starts, n_frames - length)
+    return starts
 
 
 def frames_needed(n_combined: int, *, length: int = 12, step: int = 12) -> int:
@@ -27,7 +37,7 @@ def frames_needed(n_combined: int, *, length: int = 12, step: int = 12) -> int:
     return (n_combined - 1) * step + length
 
 
-def combine(frames, camera=None, *, length: int = 12, step: int = 12,
+def combine(frames, camera=None, *, length: int = 12, step: int = 12, tail: bool = True,
             projection: str = "dp", dp_radius: int = 1, dp_decay: float = 0.95,
             dp_smooth: float = 0.6) -> np.ndarray:
     """Project windows of ``length`` frames, every ``step`` frames, into combined frames.
@@ -47,6 +57,10 @@ def combine(frames, camera=None, *, length: int = 12, step: int = 12,
         Frames per combined frame (paper: 12).
     step : int
         Frames between the starts of consecutive windows (paper: 12, no overlap).
+    tail : bool
+        When the windows leave frames after the last one, one more window over the last
+        ``length`` frames (``window_starts``); false: those frames are dropped (the
+        paper).
     projection : {"max", "mean", "sum", "dp"}
         Per-pixel projection over the window. ``dp`` (beyond the paper) is a dynamic-
         programming track-before-detect merit: M_0 = F_0, M_t = F_t + dp_decay x
@@ -66,8 +80,8 @@ def combine(frames, camera=None, *, length: int = 12, step: int = 12,
     Returns
     -------
     ndarray of float32 of shape (K, H, W)
-        K = number of full windows, ``window_starts(T, length=, step=)``; a trailing
-        partial window is dropped (K = 0 when T < length).
+        K = number of windows, ``window_starts(T, length=, step=, tail=)`` (K = 0 when
+        T < length).
 
     Notes
     -----
@@ -97,7 +111,7 @@ def combine(frames, camera=None, *, length: int = 12, step: int = 12,
     arr = np.asarray(frames)
     if arr.ndim != 3:
         raise ValueError(f"frames must have shape (T, H, W), got {arr.shape}")
-    starts = window_starts(len(arr), length=length, step=step)
+    starts = window_starts(len(arr), length=length, step=step, tail=tail)
     out = np.empty((len(starts),) + arr.shape[1:], dtype=np.float32)
     dp = (int(dp_radius), float(dp_decay), float(dp_smooth))
     moves = None

@@ -438,20 +438,29 @@ def run_irdetect(frames, truth, gate, cfg: ProcessConfig) -> dict:
     seconds = time.perf_counter() - t0
     n, h, w = frames.shape
     run = fit_config(cfg, n)          # a short sequence runs with shorter combined frames
-    length, step = run.combine.length, run.combine.step
-    win = score_detections(out["detections"], truth, n_frames=n, length=length, step=step,
-                           shape=(h, w), gate=gate)
+    length, step, tail = run.combine.length, run.combine.step, run.combine.tail
+    scored = dict(n_frames=n, length=length, step=step, shape=(h, w), gate=gate, tail=tail)
+    win = score_detections(out["detections"], truth, **scored)
     # a detection is a claim about its whole window: the window's frames count as
-    # detected when it matched the true path, and a false one is false in each frame
-    per_frame = {"pd": win["detected"] * length / n, "false_per_frame": win["false"] * length / n}
+    # detected when it matched the true path (the one target's frames in a window where
+    # it was found: the tail window overlaps the one before it), and a false one is false
+    # in each frame
+    found = np.zeros(n, bool)
+    for k, s in enumerate(window_starts(n, length=length, step=step, tail=tail)):
+        one = out["detections"][out["detections"]["combined_frame"] == k].copy()
+        one["combined_frame"] = 0
+        near = truth[(truth["frame"] >= s) & (truth["frame"] < s + length)].copy()
+        near["frame"] -= s
+        found[s:s + length] |= score_detections(one, near, **{**scored, "n_frames": length,
+                                                              "tail": False})["detected"] > 0
+    per_frame = {"pd": found.mean(), "false_per_frame": win["false"] * length / n}
     tracks = []
     for tr in out["tracks"]:
         t = np.arange(tr["frame_start"], tr["frame_end"] + 1)
         pos = track_positions(tr.reshape(1), t, out["camera"])[0]
         tracks.append(np.column_stack([t, pos]))
     right, false = score_tracks(tracks, truth, gate)
-    curve = roc(out["detections"], truth, n_frames=n, length=length, step=step, shape=(h, w),
-                gate=gate)
+    curve = roc(out["detections"], truth, **scored)
     return {"win_detected": win["detected"], "win_targets": win["targets"], "win_pd": win["pd"],
             "roc": curve, "paths": np.bincount(out["detections"]["path"], minlength=4),
             "win_false": win["false_per_window"], "length": length, **per_frame,
@@ -564,8 +573,8 @@ def picture(name: str, t: int, centre=None) -> Path:
     # t's whole window, as the pipeline suppresses it (``auto`` decides per window; the
     # first frames look ahead, ``suppress.lead_in``)
     length = cfg.combine.length
-    s = max(int(a) for a in window_starts(len(frames), length=length, step=cfg.combine.step)
-            if a <= t)
+    s = max(int(a) for a in window_starts(len(frames), length=length, step=cfg.combine.step,
+                                          tail=cfg.combine.tail) if a <= t)
     ahead = future_frames(start=s, stop=s + length, **sup)
     res = suppress(frames[s:s + length], previous=frames[max(0, s - keep):s],
                    following=frames[s + length:s + length + ahead] if ahead else None,

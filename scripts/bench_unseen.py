@@ -281,7 +281,7 @@ def camera_error(estimate: np.ndarray, true: np.ndarray | None) -> float:
 # --- scoring -----------------------------------------------------------------------------
 
 def score_windows(detections: np.ndarray, truth: np.ndarray, *, n_frames: int, length: int,
-                  step: int, shape: tuple[int, int], gate: float) -> dict:
+                  step: int, shape: tuple[int, int], gate: float, tail: bool = False) -> dict:
     """Detection counts with the presence rule, one window at a time.
 
     Parameters
@@ -296,6 +296,8 @@ def score_windows(detections: np.ndarray, truth: np.ndarray, *, n_frames: int, l
         Frame (H, W).
     gate : float
         Match distance in px.
+    tail : bool
+        The run's tail window over the last ``length`` frames (``CombineConfig.tail``).
 
     Returns
     -------
@@ -304,7 +306,7 @@ def score_windows(detections: np.ndarray, truth: np.ndarray, *, n_frames: int, l
         target-windows), ``detected``, ``false``, ``set_aside`` (detections near a
         target present in less than ``PRESENCE`` of the window's frames).
     """
-    starts = window_starts(n_frames, length=length, step=step)
+    starts = window_starts(n_frames, length=length, step=step, tail=tail)
     out = {"windows": len(starts), "targets": 0, "detected": 0, "false": 0, "set_aside": 0}
     covered = np.zeros(n_frames, bool)
     for k, s in enumerate(starts):
@@ -397,20 +399,20 @@ def run_scene(task: tuple) -> dict:
     scene.update(gate=gate, error=None)
     try:
         run = fit_config(config, n)
-        length, step = run.combine.length, run.combine.step
+        length, step, tail = run.combine.length, run.combine.step, run.combine.tail
         scene.update(length=length, step=step)
         t0 = time.perf_counter()
         out = detect_sequence(frames, config)
         scene["seconds"] = time.perf_counter() - t0
         scene["fps"] = n / scene["seconds"]
         scene.update(score_windows(out["detections"], truth, n_frames=n, length=length,
-                                   step=step, shape=(h, w), gate=gate))
+                                   step=step, shape=(h, w), gate=gate, tail=tail))
         scene.update(score_tracks(out["tracks"], truth, out["camera"], gate=2 * gate,
                                   min_frames=frames_needed(N_CORRELATE, length=length,
                                                            step=step)))
         scene["camera_error"] = camera_error(out["camera"], true_camera(scene, truth))
         curve = roc(out["detections"], truth, n_frames=n, length=length, step=step,
-                    shape=(h, w), gate=gate)
+                    shape=(h, w), gate=gate, tail=tail)
         scene["roc_auc"] = curve["auc"]
         scene.update(tophat_peak(frames, truth, gate))
     except Exception as exc:  # irdetect failed on this scene: report it, go on

@@ -99,7 +99,7 @@ def diagnose(name, cfg, residual=False):
     finally:
         pipeline.combined.correlate = rec.original
     length, step = cfg.combine.length, cfg.combine.step
-    starts = window_starts(len(frames), length=length, step=step)
+    starts = window_starts(len(frames), length=length, step=step, tail=cfg.combine.tail)
     det, cand = out["detections"], out["candidates"]
     print(f"== {name}: {len(out['tracks'])} tracks")
     for k, s in enumerate(starts):

@@ -12,9 +12,17 @@ def test_windows_and_projections():
     stack[14, 2, 2] = 6.0
     assert list(window_starts(30, length=12, step=12)) == [0, 12]   # partial window dropped
     assert list(window_starts(30, length=12, step=6)) == [0, 6, 12, 18]
+    # the tail window covers the last frames the others leave, and only then
+    assert list(window_starts(30, length=12, step=12, tail=True)) == [0, 12, 18]
+    assert list(window_starts(36, length=12, step=12, tail=True)) == [0, 12, 24]
+    assert list(window_starts(31, length=12, step=6, tail=True)) == [0, 6, 12, 18, 19]
+    assert list(window_starts(11, length=12, step=12, tail=True)) == []
     assert frames_needed(3, length=12, step=12) == 36
-    mx = combine(stack, projection="max")
+    mx = combine(stack, projection="max", tail=False)
     assert mx.shape == (2, 6, 6) and mx[0, 1, 1] == 4.0 and mx[1, 2, 2] == 6.0
+    stack[29, 3, 3] = 5.0                               # in the last frame
+    mx = combine(stack, projection="max")
+    assert mx.shape == (3, 6, 6) and mx[2, 2, 2] == 0.0 and mx[2, 3, 3] == 5.0
     assert combine(stack, projection="mean")[0, 1, 1] == pytest.approx(4.0 / 12)
     assert combine(stack, projection="sum", length=6, step=6)[2, 2, 2] == 6.0
     assert combine(stack[:5]).shape == (0, 6, 6)

@@ -58,18 +58,37 @@ def test_streaming_file_matches_in_memory_and_writes_the_contract(tmp_path):
         process_file(seq, res, ProcessConfig())
 
 
-def test_frames_after_the_last_full_window_are_said_to_be_unexamined(tmp_path, caplog):
+def test_the_tail_window_examines_the_frames_after_the_last_full_window(tmp_path, caplog):
     frames, truth = simulate("wan2008", snr=4, rng=5, n_frames=41, height=64, width=64,
                              n_targets=1)
     seq = tmp_path / "seq.h5"
     write_sequence(seq, frames, truth=truth)
     with caplog.at_level(logging.INFO, logger="irdetect"):
         summary = process_file(seq, tmp_path / "out.h5", ProcessConfig())
+    assert summary["combined_frames"] == 4              # frames 0-35 and 29-40
+    assert not [r for r in caplog.records if "not examined" in r.getMessage()]
+    res = read_results(tmp_path / "out.h5")
+    assert len(res["camera"]) == 41 and res["frame_detections"]["frame"].max() == 40
+    tail = res["detections"][res["detections"]["combined_frame"] == 3]
+    assert set(tail["frame_start"]) == {29} and set(tail["frame_end"]) == {40}
+    # the target at the tail window's middle frame (34.5), found there
+    mid = truth[np.isin(truth["frame"], (34, 35))]
+    assert np.hypot(tail["x"] - mid["x"].mean(), tail["y"] - mid["y"].mean()).min() < 1.5
+    assert res["tracks"]["frame_end"].max() == 40
+    m = score_detections(res["detections"], truth, n_frames=41, length=12, step=12,
+                         shape=(64, 64), tail=True)
+    assert m["windows"] == 4 and m["detected"] == 4
+
+    # the paper's windows alone: the last frames unexamined, and the log says so
+    paper = dataclasses.replace(ProcessConfig().combine, tail=False)
+    with caplog.at_level(logging.INFO, logger="irdetect"):
+        summary = process_file(seq, tmp_path / "paper.h5",
+                               dataclasses.replace(ProcessConfig(), combine=paper))
     assert summary["combined_frames"] == 3              # frames 0-35
     said = [r.getMessage() for r in caplog.records if "not examined" in r.getMessage()]
     assert said == ["frames 36-40 come after the last full combined frame and were not "
                     "examined"]
-    assert len(read_results(tmp_path / "out.h5")["camera"]) == 36
+    assert len(read_results(tmp_path / "paper.h5")["camera"]) == 36
 
 
 def test_overlapping_windows_with_a_spatial_suppressor():

@@ -59,7 +59,7 @@ def _detection_section(results, truth, ctx) -> dict:
 
     det = results["detections"]
     kw = dict(n_frames=ctx["n_frames"], length=ctx["length"], step=ctx["step"],
-              shape=ctx["shape"], gate=ctx["gate"])
+              shape=ctx["shape"], gate=ctx["gate"], tail=ctx["tail"])
     out = score_detections(det, truth, **kw)
     out["false_per_frame"] = out["false"] / ctx["n_frames"]
     if "snr" in det.dtype.names:          # results of irdetect 0.x before the per-frame path
@@ -79,7 +79,7 @@ def _mot_section(results, truth, ctx) -> dict:
 #: Sections run in order, each when its table is in the results file (add new scores
 #: here, and their meaning to LEGEND):
 #: ``(title, table name, function(results, truth, context) -> dict of scores)``; the
-#: context holds n_frames, length, step, shape (H, W), gate, frame_rate.
+#: context holds n_frames, length, step, tail, shape (H, W), gate, frame_rate.
 def _initiation_section(results, truth, ctx) -> dict:
     """Pt per target and overall, Pc and velocity error of /tracks (irdetect process;
     the frame-by-frame tracker's /tracks, beside /track_points, are scored by CLEAR-MOT)."""
@@ -130,7 +130,9 @@ def evaluate(results_path, truth_path=None, *, gate: float = 3.0,
     else:
         raise InputError("results file does not say the frame size (attrs frame_height, "
                          "frame_width, n_frames) and --truth is not a sequence", results_path)
-    ctx = {"n_frames": n_frames, "length": length, "step": step, "shape": shape,
+    # results written before the tail window (``combine.tail``) have none
+    ctx = {"n_frames": n_frames, "length": length, "step": step,
+           "tail": bool(cfg.get("tail", False)), "shape": shape,
            "gate": float(gate), "frame_rate": attrs.get("frame_rate")}
     out = {}
     for title, table, function in SECTIONS:

@@ -46,7 +46,7 @@ def path_distance(points: np.ndarray, path: np.ndarray) -> np.ndarray:
 
 def score_detections(detections: np.ndarray, truth: np.ndarray, *, n_frames: int,
                      length: int, step: int, shape: tuple[int, int],
-                     gate: float = 3.0, footprint: int = 3) -> dict:
+                     gate: float = 3.0, footprint: int = 3, tail: bool = False) -> dict:
     """Pd, false detections and pixel-level Fa of confirmed detections.
 
     Parameters
@@ -64,6 +64,11 @@ def score_detections(detections: np.ndarray, truth: np.ndarray, *, n_frames: int
         Match distance in px (> 0) between a detection and a target's path in the window.
     footprint : int
         Odd side in px of the square each detection is rasterised to for the pixel Fa.
+    tail : bool
+        The run had the tail window (``CombineConfig.tail``): when the windows leave
+        frames after them, the last window covers [n_frames - length, n_frames)
+        (``irdetect.combine.window_starts``). Without it, detections of that window are
+        not scored.
 
     Returns
     -------
@@ -86,7 +91,7 @@ def score_detections(detections: np.ndarray, truth: np.ndarray, *, n_frames: int
     if int(footprint) != footprint or footprint < 1 or footprint % 2 == 0:
         raise ValueError(f"footprint must be an odd integer >= 1, got {footprint!r}")
     h, w = int(shape[0]), int(shape[1])
-    starts = window_starts(int(n_frames), length=length, step=step)
+    starts = window_starts(int(n_frames), length=length, step=step, tail=tail)
     det = np.asarray(detections)
     tru = np.asarray(truth)
     targets = detected = false = false_px = 0
@@ -146,12 +151,12 @@ ROC_POINTS = 40
 
 def roc(detections: np.ndarray, truth: np.ndarray, *, n_frames: int, length: int, step: int,
         shape: tuple[int, int], gate: float = 3.0, score: str = "snr",
-        false_max: float = ROC_FALSE_MAX) -> dict:
+        false_max: float = ROC_FALSE_MAX, tail: bool = False) -> dict:
     """Pd and false detections per frame of the detections at or above a sweep of scores.
 
     Parameters
     ----------
-    detections, truth, n_frames, length, step, shape, gate
+    detections, truth, n_frames, length, step, shape, gate, tail
         As ``score_detections``.
     score : str
         The field ranked (``snr``: the local SNR both paths share; ``score``).
@@ -179,7 +184,7 @@ def roc(detections: np.ndarray, truth: np.ndarray, *, n_frames: int, length: int
     pd, fpf = [], []
     for t in thresholds:                  # a loop over a few dozen thresholds
         m = score_detections(det[s >= t], truth, n_frames=n_frames, length=length, step=step,
-                             shape=shape, gate=gate)
+                             shape=shape, gate=gate, tail=tail)
         pd.append(m["pd"])
         fpf.append(m["false"] / n_frames)
     pd, fpf = np.array(pd), np.array(fpf)

@@ -241,7 +241,7 @@ def _images(points_image, points_xy, radius, truth_image, truth_xy, n_images, sh
 def score_irstd_detections(detections: np.ndarray, truth: np.ndarray, *, n_frames: int,
                            length: int, step: int, shape: tuple[int, int],
                            distance: float = 3.0, radius: float = POINT_RADIUS,
-                           truth_radius: float = POINT_RADIUS) -> dict:
+                           truth_radius: float = POINT_RADIUS, tail: bool = False) -> dict:
     """IRSTD Pd and Fa of ``/detections`` (``irdetect process``), one image per window.
 
     Parameters
@@ -251,9 +251,12 @@ def score_irstd_detections(detections: np.ndarray, truth: np.ndarray, *, n_frame
         window's middle time.
     truth : structured ndarray
         ``irdetect.tables.TRUTH`` rows; each window's truth image holds the targets at the
-        window's middle time, k step + (length - 1) / 2.
+        window's middle time, its first frame + (length - 1) / 2.
     n_frames, length, step : int
         The sequence length and the combined-frame windows.
+    tail : bool
+        The run had the tail window over the last ``length`` frames
+        (``irdetect.combine.window_starts``).
     shape : (int, int)
         Frame (H, W).
     distance : float
@@ -266,7 +269,7 @@ def score_irstd_detections(detections: np.ndarray, truth: np.ndarray, *, n_frame
     dict
         As :func:`pd_fa`, the images being the windows.
     """
-    starts = window_starts(int(n_frames), length=length, step=step)
+    starts = window_starts(int(n_frames), length=length, step=step, tail=tail)
     det = np.asarray(detections)
     det = det[(det["combined_frame"] >= 0) & (det["combined_frame"] < len(starts))]
     t_image, t_xy = truth_at(truth, starts + (length - 1) / 2)
@@ -316,7 +319,8 @@ def irstd_section(results, truth: np.ndarray, ctx: dict, path=None) -> dict:
     """``irdetect evaluate --irstd``: IRSTD Pd / Fa of a results file's ``/track_points``
     (``irdetect track``, per frame) or else its ``/detections`` (per window).
 
-    ``ctx`` holds n_frames, length, step, shape (H, W) and gate (the distance threshold).
+    ``ctx`` holds n_frames, length, step, tail, shape (H, W) and gate (the distance
+    threshold).
 
     Raises
     ------
@@ -331,5 +335,6 @@ def irstd_section(results, truth: np.ndarray, ctx: dict, path=None) -> dict:
     if "detections" in results:
         return score_irstd_detections(results["detections"], truth, n_frames=ctx["n_frames"],
                                       length=ctx["length"], step=ctx["step"],
-                                      shape=ctx["shape"], distance=ctx["gate"])
+                                      shape=ctx["shape"], distance=ctx["gate"],
+                                      tail=ctx["tail"])
     raise InputError("--irstd needs /detections or /track_points", path)

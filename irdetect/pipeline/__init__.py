@@ -168,13 +168,17 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
     if int(workers) != workers or workers < 1:
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     starts = window_starts(n_frames, length=cc.length, step=cc.step)
+    # the window over the last frames the others leave (``CombineConfig.tail``) and the
+    # triple of windows ``step`` apart that ends there and confirms it
+    tail = window_starts(n_frames, length=cc.length, step=cc.step, tail=cc.tail)[len(starts):]
+    triple_starts = [int(t) - j * cc.step for t in tail for j in (2, 1, 0)]
     params = StageParams(config)
     params.exclude = exclusion_mask(config.exclude, shape[1:])
     params.floor = quantisation_floor(frames[0:1][0], params.psf) if n_frames else 0.0
     # the first window(s) look ahead: their first frames have no past (``lead_in``)
-    ahead = [future_frames(start=int(s), stop=int(s) + cc.length, **params.suppress)
-             for s in starts]
-    reader = Reader(frames, past_frames(**params.suppress), cc.length, max(ahead),
+    ahead = {int(s): future_frames(start=int(s), stop=int(s) + cc.length, **params.suppress)
+             for s in (*starts, *triple_starts)}
+    reader = Reader(frames, past_frames(**params.suppress), cc.length, max(ahead.values()),
                      camera=config.suppress.method in ("auto", "registered"))
     pool = ThreadPoolExecutor(int(workers)) if workers > 1 else None
     fronts: deque = deque()      # windows read and submitted, in order
@@ -186,25 +190,26 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
     long_memory = params.long_memory and config.suppress.method in ("auto", "temporal")
 
     def long_past(s: int, end: int):
-        """The earlier windows' first frames, while the camera held still since the
-        oldest of them (else None)."""
-        if not (long_memory and firsts):
+        """The first frames of the windows before ``s``, while the camera held still
+        since the oldest of them (else None)."""
+        earlier = [(first, f) for first, f in firsts if first < s]
+        if not (long_memory and earlier):
             return None
-        span = reader.offsets[firsts[0][0]:end]
+        span = reader.offsets[earlier[0][0]:end]
         if np.ptp(span, axis=0).max() >= STILL_PX:
             return None
-        return np.stack([f for _, f in firsts])
+        return np.stack([f for _, f in earlier])
 
-    def submit(k: int):
+    def submit(s: int):
+        """Read window [s, s + length) and start its front end (``combined.front``)."""
         t0 = time.perf_counter()
-        s = int(starts[k])
-        block, previous = reader.read(s, s + cc.length + ahead[k])
+        block, previous = reader.read(s, s + cc.length + ahead[s])
         camera = reader.offsets[s - len(previous):s + len(block)]
         block, following = block[:cc.length], block[cc.length:]
         previous = previous if len(previous) else None
         following = following if len(following) else None
         memory = long_past(s, s + cc.length)
-        if long_memory:
+        if long_memory and (not firsts or s > firsts[-1][0]):
             firsts.append((s, block[0].copy()))
         if pool is None:
             lap(timings, "read", t0)
@@ -262,24 +267,28 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
         camera_done = end
         return chunk
 
+    def pend(k: int, s: int, result) -> Pending:
+        """Combined frame ``k`` (window [s, s + length)) waiting for its segments."""
+        cand, n_pixels, matched, peaks = result
+        cand["frame_start"], cand["frame_end"] = s, s + cc.length - 1
+        cand["combined_frame"] = k
+        if peaks is not None:
+            peaks["frame"] += s
+        log.debug("combined frame %d (frames %d-%d): %d candidate pixels, %d fused points",
+                  k, s, s + cc.length - 1, n_pixels, len(cand))
+        return Pending(cand, cc.length if cc.projection == "dp" else 0,
+                       matched, s, config.correlate.tolerance,
+                       reader.offsets[s:s + cc.length].copy(), peaks,
+                       SUPPORT_GATE * config.frame.sigma,
+                       config.operating.false_rate, params.exclude)
+
     try:
         submitted = 0
         for k, s in enumerate(starts):
             while submitted < len(starts) and len(fronts) < (1 if pool is None else workers):
-                fronts.append(submit(submitted))
+                fronts.append(submit(int(starts[submitted])))
                 submitted += 1
-            cand, n_pixels, matched, peaks = fronts.popleft().result()
-            cand["frame_start"], cand["frame_end"] = s, s + cc.length - 1
-            cand["combined_frame"] = k
-            if peaks is not None:
-                peaks["frame"] += s
-            pending.append(Pending(cand, cc.length if cc.projection == "dp" else 0,
-                                    matched, int(s), config.correlate.tolerance,
-                                    reader.offsets[s:s + cc.length].copy(), peaks,
-                                    SUPPORT_GATE * config.frame.sigma,
-                                    config.operating.false_rate, params.exclude))
-            log.debug("combined frame %d (frames %d-%d): %d candidate pixels, %d fused points",
-                      k, s, s + cc.length - 1, n_pixels, len(cand))
+            pending.append(pend(k, int(s), fronts.popleft().result()))
             if k >= N_CORRELATE - 1:
                 # windows k-2, k-1, k: with a pool their correlation runs beside the next
                 # windows' front end; the results are taken up in order
@@ -299,6 +308,19 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
             done = pending.popleft()
             yield with_camera(emit(done, tables.empty(tables.SEGMENT)),
                               done.start + cc.length, done.peaks)
+        if triple_starts:
+            # the tail window, confirmed as the last of its own triple (windows ``step``
+            # apart, the first two overlapping the windows above and not emitted; its
+            # segments are not written: /segments holds triples of consecutive windows)
+            fronts.extend(submit(s) for s in triple_starts)
+            triple = [pend(len(starts), s, fronts.popleft().result()) for s in triple_starts]
+            corr = correlate_windows(triple, cc, params, timings)
+            for i, p in enumerate(triple):
+                p.confirm(corr.index[:, i], corr.segments, corr.positions[:, i])
+            t0 = time.perf_counter()
+            chunk = triple[-1].emit(tables.empty(tables.SEGMENT), (), triple[-2::-1])
+            lap(timings, "operate", t0)
+            yield with_camera(chunk, n_frames, triple[-1].peaks)
     finally:
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
@@ -501,7 +523,7 @@ def process_file(input, output, config: ProcessConfig | None = None, *, dataset=
         lap(timings, "write", t)
     seconds = time.perf_counter() - t0
     examined = frames_needed(n_combined, length=run.combine.length, step=run.combine.step)
-    if examined < n_frames:
+    if examined < n_frames and not run.combine.tail:
         log.info("frames %d-%d come after the last full combined frame and were not "
                  "examined", examined, n_frames - 1)
     log.info("%d frames -> %d combined frames, %d candidates, %d detections, %d segments, "

@@ -591,11 +591,11 @@ def finish(combined: np.ndarray, peaks: np.ndarray, camera: np.ndarray,
     from irdetect.pipeline.perframe import frame_tracks
 
     fc, cc = config.frame, config.combine
+    starts = window_starts(n_frames, length=cc.length, step=cc.step, tail=cc.tail)
     if fc.enabled:
         level = frame_level(shape, fc.false_rate)
-        ft = frame_tracks(peaks, camera, window_starts(n_frames, length=cc.length, step=cc.step),
-                          cc.length, shape=shape, n_frames=n_frames, level=level,
-                          false_rate=fc.false_rate, sigma=fc.sigma, max_speed=fc.max_speed,
+        ft = frame_tracks(peaks, camera, starts, cc.length, shape=shape, n_frames=n_frames,
+                          level=level, false_rate=fc.false_rate, sigma=fc.sigma, max_speed=fc.max_speed,
                           false_tracks=fc.false_tracks,
                           confirm_m=fc.confirm_m, confirm_n=fc.confirm_n,
                           clutter_speed=fc.clutter_speed)
@@ -604,9 +604,39 @@ def finish(combined: np.ndarray, peaks: np.ndarray, camera: np.ndarray,
     # the combined-frame path's operating point (``irdetect.operating``; -inf: none)
     combined = combined[~(combined["significance"] < combined["level"])]
     detections = fuse_paths(combined, ft) if fc.enabled else combined
-    tracks = initiate_tracks(detections, config, camera, shape=shape,
-                             starts=window_starts(n_frames, length=cc.length, step=cc.step),
-                             length=cc.length)
-    tracks["path"] = track_paths(tracks, detections, camera,
-                                 config.initiate.gate * config.initiate.sigma)
+    # the Hough's scans are the windows every ``step`` frames: the tail window, which
+    # overlaps the last of them, would be one more scan to vote in (raising the votes a
+    # line needs) and a second vote for what that one saw; it extends the tracks
+    regular = len(window_starts(n_frames, length=cc.length, step=cc.step))
+    tail = detections["combined_frame"] >= regular
+    gate = config.initiate.gate * config.initiate.sigma
+    tracks = initiate_tracks(detections[~tail], config, camera, shape=shape,
+                             starts=starts[:regular], length=cc.length)
+    tracks = extend_tracks(tracks, detections[tail], camera, gate)
+    tracks["path"] = track_paths(tracks, detections, camera, gate)
     return {"frame_tracks": ft, "detections": detections, "tracks": tracks}
+
+
+def extend_tracks(tracks: np.ndarray, detections: np.ndarray, camera, gate: float) -> np.ndarray:
+    """``tracks`` with each one that a detection of the tail window lies on (within
+    ``gate`` px of its position at the detection's time, in its span) extended to that
+    window's last frame, and that detection counted in ``n_points``.
+
+    Parameters
+    ----------
+    tracks : structured ndarray
+        ``tables.TRACK`` rows.
+    detections : structured ndarray
+        ``tables.DETECTION`` rows of the tail window (``CombineConfig.tail``).
+    camera : structured ndarray or None
+        ``tables.CAMERA`` rows (a ``scene`` track's positions follow the camera).
+    gate : float
+        px.
+    """
+    out = tracks.copy()
+    if not (len(out) and len(detections)):
+        return out
+    rows, cols, _ = _support(out, detections, camera, gate)
+    np.maximum.at(out["frame_end"], rows, detections["frame_end"][cols])
+    out["n_points"][np.unique(rows)] += 1
+    return out
