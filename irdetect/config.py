@@ -58,8 +58,9 @@ class CombineConfig:
     step: int = 12
     #: one more combined frame over the sequence's last ``length`` frames when the
     #: windows every ``step`` frames leave frames after them (``combine.window_starts``;
-    #: confirmed by a triple of windows ``step`` apart ending there); false: the paper's
-    #: windows alone, the last frames unexamined
+    #: confirmed as the last of a triple with the two windows before it, unevenly
+    #: spaced, ``correlate``'s ``gap``); false: the paper's windows alone, the last
+    #: frames unexamined
     tail: bool = True
     projection: str = "dp"
     dp_radius: int = 1

@@ -60,8 +60,8 @@ def motion_bound(step: int, max_speed: float, tolerance: float) -> float:
 
 
 
-def correlate(points1, points2, points3, step: int, evidence: Evidence | None = None, *,
-              max_speed: float = 2.0, tolerance: float = 5.0,
+def correlate(points1, points2, points3, step: int, evidence: Evidence | None = None,
+              gap: int | None = None, *, max_speed: float = 2.0, tolerance: float = 5.0,
               constant_velocity: bool = True, max_deviation: float = 20.0,
               resolve: str = "cost", min_score: float = 3.5,
               verify: float = 6.5, verify_local: float = 3.5,
@@ -76,6 +76,12 @@ def correlate(points1, points2, points3, step: int, evidence: Evidence | None = 
     step : int
         Frames between the starts of consecutive combined frames (the time t between
         them), ``CombineConfig.step``.
+    gap : int, optional
+        Beyond the paper: frames between the starts of combined frames k+1 and k+2 when
+        they differ from ``step`` (the tail window over a sequence's last frames,
+        ``CombineConfig.tail``, follows the window before it by fewer). The motion
+        bound l2 is then max_speed x gap + tolerance, constant velocity puts the third
+        point at p2 + (p2 - p1) gap / step, and v = (p3 - p1) / (step + gap).
     evidence : Evidence, optional
         The matched residual frames behind the 3 combined frames (the pipeline passes
         them). With it and ``verify`` > 0, every chain is verified by a velocity-matched
@@ -87,7 +93,8 @@ def correlate(points1, points2, points3, step: int, evidence: Evidence | None = 
         Position uncertainty of a fused point in px (>= 0), added to the motion bound.
     constant_velocity : bool
         Beyond the paper: also require |p1 - 2 p2 + p3| <= ``max_deviation`` (the middle
-        point within reach of the midpoint of the outer two: straight, uniform motion).
+        point within reach of the midpoint of the outer two: straight, uniform motion;
+        with ``gap``, |p3 - p2 - (p2 - p1) gap / step|).
     max_deviation : float
         Largest deviation from constant velocity in px (> 0), Euclidean.
     min_score : float
@@ -168,6 +175,10 @@ def correlate(points1, points2, points3, step: int, evidence: Evidence | None = 
     pts = [_as_points(p, f"points{i + 1}") for i, p in enumerate((points1, points2, points3))]
     if int(step) != step or step < 1:
         raise ValueError(f"step must be an integer >= 1, got {step!r}")
+    gap = step if gap is None else gap
+    if int(gap) != gap or gap < 1:
+        raise ValueError(f"gap must be an integer >= 1, got {gap!r}")
+    steps = (int(step), int(gap))
     if not np.isfinite(max_speed) or max_speed < 0:
         raise ValueError(f"max_speed must be a number >= 0, got {max_speed!r}")
     if not np.isfinite(tolerance) or tolerance < 0:
@@ -189,10 +200,12 @@ def correlate(points1, points2, points3, step: int, evidence: Evidence | None = 
     if evidence is not None and not isinstance(evidence, Evidence):
         raise ValueError(f"evidence must be an Evidence, got {type(evidence).__name__}")
     scores = [_scores(p) for p in (points1, points2, points3)]
-    bound = motion_bound(int(step), float(max_speed), float(tolerance))
-    index = _chains(pts, bound, float(max_deviation) if constant_velocity else None)
+    bounds = tuple(motion_bound(n, float(max_speed), float(tolerance)) for n in steps)
+    index = _chains(pts, bounds, float(max_deviation) if constant_velocity else None,
+                    steps[1] / steps[0])
     p1, p2, p3 = (pts[i][index[:, i]] for i in range(3))
-    deviation = np.hypot(*(p1 - 2 * p2 + p3).T) if len(index) else np.zeros(0)
+    deviation = (np.hypot(*(p3 - _predicted(p1, p2, steps[1] / steps[0])).T) if len(index)
+                 else np.zeros(0))
     if constant_velocity:
         keep = deviation <= max_deviation
         index, deviation = index[keep], deviation[keep]
@@ -204,13 +217,13 @@ def correlate(points1, points2, points3, step: int, evidence: Evidence | None = 
     if evidence is not None and verify > 0:
         if chains_per_point > 0:
             index = index[_best_per_point(index, cost, int(chains_per_point))]
-        return _verified(pts, scores, index, int(step), evidence, float(verify), resolve,
+        return _verified(pts, scores, index, steps, evidence, float(verify), resolve,
                          float(tolerance), float(verify_local), float(screen))
     if resolve == "unique":
         index, deviation = _unique(index, deviation)
     elif resolve == "cost":
         index, deviation = _greedy(index, cost)
-    return Correlation(segments=_segments(pts, scores, index, int(step)), index=index,
+    return Correlation(segments=_segments(pts, scores, index, steps), index=index,
                        positions=np.full((len(index), 3, 2), np.nan),
                        significance=np.full(len(index), np.nan))
 
@@ -228,7 +241,7 @@ def _best_per_point(index, cost, k) -> np.ndarray:
     return np.flatnonzero(keep)
 
 
-def _verified(pts, scores, index, step, evidence, verify, resolve, tolerance,
+def _verified(pts, scores, index, steps, evidence, verify, resolve, tolerance,
               verify_local, screen) -> Correlation:
     points = (np.stack([pts[i][index[:, i]] for i in range(3)], axis=1) if len(index)
               else np.zeros((0, 3, 2)))
@@ -245,7 +258,7 @@ def _verified(pts, scores, index, step, evidence, verify, resolve, tolerance,
     else:
         sel = np.arange(len(index))
     index, z, positions, v = index[sel], z[sel], positions[sel], v[sel]
-    segments = _segments(pts, scores, index, step)
+    segments = _segments(pts, scores, index, steps)
     segments["vx"], segments["vy"] = v[:, 0], v[:, 1]
     return Correlation(segments=segments, index=index, positions=positions, significance=z)
 
@@ -307,24 +320,31 @@ def _pairs(a: np.ndarray, b: np.ndarray, bound: float) -> np.ndarray:
     return np.column_stack([m["i"], m["j"]]).astype(np.int64)
 
 
-def _chains(pts, bound, deviation: float | None = None) -> np.ndarray:
-    """All (i1, i2, i3) with |p2 - p1|_inf <= bound and |p3 - p2|_inf <= bound, ordered by
-    the row of (i1, i2) among the frame 1 -> 2 pairs, then of (i2, i3) among the frame
-    2 -> 3 pairs (by i2, stable).
+def _predicted(p1, p2, ratio: float) -> np.ndarray:
+    """Where constant velocity puts the third point: p2 + (p2 - p1) ``ratio``, ``ratio``
+    the frames between the second and third windows over those between the first two
+    (2 p2 - p1 for equally spaced windows)."""
+    return p2 + (p2 - p1) * ratio
 
-    ``deviation``: only (a superset, by 1e-9 relative, of) the chains with
-    |p1 - 2 p2 + p3| <= deviation, in the same order: frame 3's points are looked up
-    around each pair's prediction 2 p2 - p1 instead of joining all pairs (a fast
-    band's motion bound of 77 px joins ~10,000 chains of which a few hundred are
-    straight).
+
+def _chains(pts, bounds, deviation: float | None = None, ratio: float = 1.0) -> np.ndarray:
+    """All (i1, i2, i3) with |p2 - p1|_inf <= bounds[0] and |p3 - p2|_inf <= bounds[1],
+    ordered by the row of (i1, i2) among the frame 1 -> 2 pairs, then of (i2, i3) among
+    the frame 2 -> 3 pairs (by i2, stable).
+
+    ``deviation``: only (a superset, by 1e-9 relative, of) the chains whose third point
+    lies within ``deviation`` of ``_predicted`` (|p1 - 2 p2 + p3| for equally spaced
+    windows), in the same order: frame 3's points are looked up around each pair's
+    prediction instead of joining all pairs (a fast band's motion bound of 77 px joins
+    ~10,000 chains of which a few hundred are straight).
     """
-    a = _pairs(pts[0], pts[1], bound)      # forward: frame 1 -> frame 2
-    b = _pairs(pts[1], pts[2], bound)      # frame 2 -> frame 3
+    a = _pairs(pts[0], pts[1], bounds[0])      # forward: frame 1 -> frame 2
+    b = _pairs(pts[1], pts[2], bounds[1])      # frame 2 -> frame 3
     if len(a) == 0 or len(b) == 0:
         return np.zeros((0, 3), np.int64)
     b = b[np.argsort(b[:, 0], kind="stable")]
     if deviation is not None:
-        return _straight_chains(pts, a, b, bound, deviation)
+        return _straight_chains(pts, a, b, bounds[1], deviation, ratio)
     lo = np.searchsorted(b[:, 0], a[:, 1], side="left")
     hi = np.searchsorted(b[:, 0], a[:, 1], side="right")
     n = hi - lo
@@ -334,10 +354,10 @@ def _chains(pts, bound, deviation: float | None = None) -> np.ndarray:
     return np.column_stack([a[rep, 0], a[rep, 1], b[j, 1]]).astype(np.int64)
 
 
-def _straight_chains(pts, a, b, bound, deviation) -> np.ndarray:
+def _straight_chains(pts, a, b, bound, deviation, ratio) -> np.ndarray:
     """``_chains`` with ``deviation`` from the pairs ``a`` (frame 1 -> 2) and ``b`` (frame
-    2 -> 3, sorted by i2, stable)."""
-    pred = 2 * pts[1][a[:, 1]] - pts[0][a[:, 0]]
+    2 -> 3 within ``bound``, sorted by i2, stable)."""
+    pred = _predicted(pts[0][a[:, 0]], pts[1][a[:, 1]], ratio)
     m = cKDTree(pred).sparse_distance_matrix(cKDTree(pts[2]), deviation * (1 + 1e-9) + 1e-12,
                                              p=2, output_type="ndarray")
     ia, i3 = m["i"].astype(np.int64), m["j"].astype(np.int64)
@@ -378,14 +398,15 @@ def _greedy(index, deviation):
     return index[keep], deviation[keep]
 
 
-def _segments(pts, scores, index, step) -> np.ndarray:
+def _segments(pts, scores, index, steps) -> np.ndarray:
+    """SEGMENT rows of the chains ``index``, v = (p3 - p1) / (frames from window 1 to 3)."""
     if len(index) == 0:
         return empty(SEGMENT)
     out = np.zeros(len(index), dtype=SEGMENT)
     for i, (xf, yf) in enumerate((("x1", "y1"), ("x2", "y2"), ("x3", "y3"))):
         out[xf] = pts[i][index[:, i], 0]
         out[yf] = pts[i][index[:, i], 1]
-    out["vx"] = (out["x3"] - out["x1"]) / (2 * step)
-    out["vy"] = (out["y3"] - out["y1"]) / (2 * step)
+    out["vx"] = (out["x3"] - out["x1"]) / sum(steps)
+    out["vy"] = (out["y3"] - out["y1"]) / sum(steps)
     out["score"] = sum(scores[i][index[:, i]] for i in range(3)) / 3.0
     return out

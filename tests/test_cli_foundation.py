@@ -27,6 +27,17 @@ def test_info_on_results_names_the_settings_that_are_not_the_defaults(cli, tmp_p
                     'suppress.method = "temporal" (default "auto")')
 
 
+def test_info_on_results_says_where_the_combined_frames_lie(cli, tmp_path):
+    assert cli("simulate", "s.h5", "--seed", "1", "--frames", "41", "--size", "64x48")[0] == 0
+    assert cli("process", "s.h5", "-o", "a.h5", "-q")[0] == 0
+    (tmp_path / "c.toml").write_text("[combine]\ntail = false\n")
+    assert cli("process", "s.h5", "-o", "b.h5", "-q", "--config", "c.toml")[0] == 0
+    assert ("  combined frames of 12 frames, 3 every 12 frames from frame 0 and the tail "
+            "window over frames 29-40") in cli("info", "a.h5")[1].splitlines()
+    assert ("  combined frames of 12 frames, 3 every 12 frames from frame 0 (frames 36-40 "
+            "in none)") in cli("info", "b.h5")[1].splitlines()
+
+
 def test_version_and_help(cli, capsys):
     with pytest.raises(SystemExit) as exc:
         cli("--version")

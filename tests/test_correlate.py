@@ -222,21 +222,28 @@ def test_track_sums_match_direct_interpolation(shape, bilinear, atol):
 
 
 @pytest.mark.parametrize("seed", range(4))
-def test_straight_chains_are_the_full_join_filtered_in_its_order(seed):
-    # the lookup around 2 p2 - p1 (``_chains(deviation=)``) returns the chains of the full
-    # join that the constant-velocity test keeps, in the same order
+@pytest.mark.parametrize("gaps", [(12, 12), (12, 5)])
+def test_straight_chains_are_the_full_join_filtered_in_its_order(seed, gaps):
+    # the lookup around the constant-velocity prediction (``_chains(deviation=)``; 2 p2 -
+    # p1 for equally spaced windows, p2 + (p2 - p1) 5 / 12 for a tail window 5 frames on)
+    # returns the chains of the full join that the constant-velocity test keeps, in the
+    # same order
     from irdetect.correlate import _chains
 
+    ratio = gaps[1] / gaps[0]
+    bounds = (30.0, 30.0 * ratio)
     rng = np.random.default_rng(seed)
     pts = [rng.uniform(0, 200, (int(rng.integers(0, 120)), 2)) for _ in range(3)]
-    full = _chains(pts, 30.0)
-    dev = np.hypot(*(pts[0][full[:, 0]] - 2 * pts[1][full[:, 1]] + pts[2][full[:, 2]]).T) \
-        if len(full) else np.zeros(0)
-    want = full[dev <= 12.0]
-    got = _chains(pts, 30.0, 12.0)
-    got_dev = np.hypot(*(pts[0][got[:, 0]] - 2 * pts[1][got[:, 1]] + pts[2][got[:, 2]]).T) \
-        if len(got) else np.zeros(0)
-    np.testing.assert_array_equal(got[got_dev <= 12.0], want)
+
+    def deviation(chains):
+        p1, p2, p3 = (pts[i][chains[:, i]] for i in range(3))
+        return np.hypot(*(p3 - p2 - (p2 - p1) * ratio).T) if len(chains) else np.zeros(0)
+
+    full = _chains(pts, bounds)
+    assert (np.abs(pts[2][full[:, 2]] - pts[1][full[:, 1]]) <= bounds[1]).all()
+    want = full[deviation(full) <= 12.0]
+    got = _chains(pts, bounds, 12.0, ratio)
+    np.testing.assert_array_equal(got[deviation(got) <= 12.0], want)
 
 
 def test_chains_per_point_bounds_the_verified_chains_and_keeps_the_target():

@@ -88,7 +88,15 @@ def test_the_tail_window_examines_the_frames_after_the_last_full_window(tmp_path
     said = [r.getMessage() for r in caplog.records if "not examined" in r.getMessage()]
     assert said == ["frames 36-40 come after the last full combined frame and were not "
                     "examined"]
-    assert len(read_results(tmp_path / "paper.h5")["camera"]) == 36
+    paper = read_results(tmp_path / "paper.h5")
+    assert len(paper["camera"]) == 36
+    # the tail window's triple confirms the tail alone: the other windows' tables are
+    # the paper's windows' own, and its segments come on top
+    for name in ("detections", "candidates", "frame_tracks"):
+        np.testing.assert_array_equal(res[name][res[name]["combined_frame"] < 3], paper[name])
+    n = len(paper["segments"])
+    np.testing.assert_array_equal(res["segments"][:n], paper["segments"])
+    assert len(res["segments"]) > n
 
 
 def test_overlapping_windows_with_a_spatial_suppressor():

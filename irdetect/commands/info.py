@@ -71,6 +71,10 @@ def _describe_results(path) -> list[str]:
         lines.append(f"  /{name}: {len(table)} rows ({', '.join(table.dtype.names)})")
     if "combined_length" in res.attrs:
         line = f"  combined frames of {res.attrs['combined_length']} frames"
+        if {"combined_step", "n_frames"} <= set(res.attrs):
+            line += _windows(int(res.attrs["n_frames"]), int(res.attrs["combined_length"]),
+                             int(res.attrs["combined_step"]),
+                             bool(res.config.get("combine", {}).get("tail", False)))
         if res.attrs.get("short_sequence"):
             line += (f" (a short sequence of {res.attrs.get('n_frames', '?')} frames: "
                      f"{res.attrs.get('configured_length', '?')} configured)")
@@ -80,6 +84,20 @@ def _describe_results(path) -> list[str]:
         lines.append("  config: the defaults" if not changed else
                      f"  config, where not the defaults: {', '.join(changed)}")
     return lines
+
+
+def _windows(n_frames: int, length: int, step: int, tail: bool) -> str:
+    """How the combined frames lie in the sequence: ", 4 every 12 frames from frame 0
+    and the tail window over frames 29-40"."""
+    from irdetect.combine import window_starts
+
+    regular = window_starts(n_frames, length=length, step=step)
+    text = f", {len(regular)} every {step} frames from frame 0"
+    if tail and len(regular) and regular[-1] + length < n_frames:
+        text += f" and the tail window over frames {n_frames - length}-{n_frames - 1}"
+    elif len(regular) and regular[-1] + length < n_frames:
+        text += f" (frames {regular[-1] + length}-{n_frames - 1} in none)"
+    return text
 
 
 def config_changes(config: dict) -> list[str]:

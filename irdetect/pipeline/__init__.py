@@ -167,18 +167,17 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
         raise ValueError(f"operating.false_rate must be a number >= 0, got {rate!r}")
     if int(workers) != workers or workers < 1:
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
-    starts = window_starts(n_frames, length=cc.length, step=cc.step)
-    # the window over the last frames the others leave (``CombineConfig.tail``) and the
-    # triple of windows ``step`` apart that ends there and confirms it
-    tail = window_starts(n_frames, length=cc.length, step=cc.step, tail=cc.tail)[len(starts):]
-    triple_starts = [int(t) - j * cc.step for t in tail for j in (2, 1, 0)]
+    # every ``step`` frames, and the tail window over the last frames those leave
+    # (``CombineConfig.tail``; its triple's spacing is uneven, ``correlate_windows``)
+    starts = window_starts(n_frames, length=cc.length, step=cc.step, tail=cc.tail)
+    regular = len(window_starts(n_frames, length=cc.length, step=cc.step))
     params = StageParams(config)
     params.exclude = exclusion_mask(config.exclude, shape[1:])
     params.floor = quantisation_floor(frames[0:1][0], params.psf) if n_frames else 0.0
     # the first window(s) look ahead: their first frames have no past (``lead_in``)
-    ahead = {int(s): future_frames(start=int(s), stop=int(s) + cc.length, **params.suppress)
-             for s in (*starts, *triple_starts)}
-    reader = Reader(frames, past_frames(**params.suppress), cc.length, max(ahead.values()),
+    ahead = [future_frames(start=int(s), stop=int(s) + cc.length, **params.suppress)
+             for s in starts]
+    reader = Reader(frames, past_frames(**params.suppress), cc.length, max(ahead),
                      camera=config.suppress.method in ("auto", "registered"))
     pool = ThreadPoolExecutor(int(workers)) if workers > 1 else None
     fronts: deque = deque()      # windows read and submitted, in order
@@ -190,26 +189,25 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
     long_memory = params.long_memory and config.suppress.method in ("auto", "temporal")
 
     def long_past(s: int, end: int):
-        """The first frames of the windows before ``s``, while the camera held still
-        since the oldest of them (else None)."""
-        earlier = [(first, f) for first, f in firsts if first < s]
-        if not (long_memory and earlier):
+        """The earlier windows' first frames, while the camera held still since the
+        oldest of them (else None)."""
+        if not (long_memory and firsts):
             return None
-        span = reader.offsets[earlier[0][0]:end]
+        span = reader.offsets[firsts[0][0]:end]
         if np.ptp(span, axis=0).max() >= STILL_PX:
             return None
-        return np.stack([f for _, f in earlier])
+        return np.stack([f for _, f in firsts])
 
-    def submit(s: int):
-        """Read window [s, s + length) and start its front end (``combined.front``)."""
+    def submit(k: int):
         t0 = time.perf_counter()
-        block, previous = reader.read(s, s + cc.length + ahead[s])
+        s = int(starts[k])
+        block, previous = reader.read(s, s + cc.length + ahead[k])
         camera = reader.offsets[s - len(previous):s + len(block)]
         block, following = block[:cc.length], block[cc.length:]
         previous = previous if len(previous) else None
         following = following if len(following) else None
         memory = long_past(s, s + cc.length)
-        if long_memory and (not firsts or s > firsts[-1][0]):
+        if long_memory:
             firsts.append((s, block[0].copy()))
         if pool is None:
             lap(timings, "read", t0)
@@ -232,23 +230,27 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
         segments["combined_frame"] = first
         segments["segment_id"] = np.arange(segment_id, segment_id + len(segments))
         segment_id += len(segments)
-        for i, p in enumerate(list(pending)[:N_CORRELATE]):
-            p.confirm(corr.index[:, i], segments, corr.positions[:, i])
+        # the tail window's triple confirms the tail alone: the windows before it keep
+        # what their own triples confirmed (their tables are those of ``tail = false``)
+        roles = range(N_CORRELATE) if first + N_CORRELATE <= regular else [N_CORRELATE - 1]
+        for i in roles:
+            pending[i].confirm(corr.index[:, i], segments, corr.positions[:, i])
         first += 1
         done = pending.popleft()
         return with_camera(emit(done, segments), done.start + cc.length, done.peaks)
 
     # the operating point's windows (``combined.OPERATING_WINDOWS``, read per run)
     beside = combined.OPERATING_WINDOWS
-    emitted: deque = deque(maxlen=max(1, beside - 1))  # the last windows whose frames stay
+    emitted: deque = deque(maxlen=beside)  # the last windows whose frames stay
 
     def emit(done: Pending, segments) -> dict:
         """``done.emit`` with the windows beside it; the last windows of the sequence keep
-        their frames for the ones after them, which have fewer windows ahead."""
+        their frames for the ones after them, which have fewer windows ahead (and the
+        tail window overlaps the one before it, which it then skips)."""
         t0 = time.perf_counter()
         k = int(np.searchsorted(starts, done.start))     # done's window index
         chunk = done.emit(segments, pending, reversed(emitted),
-                          keep_frames=k >= len(starts) - beside)
+                          keep_frames=k >= len(starts) - beside - 1)
         emitted.append(done)
         lap(timings, "operate", t0)
         return chunk
@@ -267,28 +269,24 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
         camera_done = end
         return chunk
 
-    def pend(k: int, s: int, result) -> Pending:
-        """Combined frame ``k`` (window [s, s + length)) waiting for its segments."""
-        cand, n_pixels, matched, peaks = result
-        cand["frame_start"], cand["frame_end"] = s, s + cc.length - 1
-        cand["combined_frame"] = k
-        if peaks is not None:
-            peaks["frame"] += s
-        log.debug("combined frame %d (frames %d-%d): %d candidate pixels, %d fused points",
-                  k, s, s + cc.length - 1, n_pixels, len(cand))
-        return Pending(cand, cc.length if cc.projection == "dp" else 0,
-                       matched, s, config.correlate.tolerance,
-                       reader.offsets[s:s + cc.length].copy(), peaks,
-                       SUPPORT_GATE * config.frame.sigma,
-                       config.operating.false_rate, params.exclude)
-
     try:
         submitted = 0
         for k, s in enumerate(starts):
             while submitted < len(starts) and len(fronts) < (1 if pool is None else workers):
-                fronts.append(submit(int(starts[submitted])))
+                fronts.append(submit(submitted))
                 submitted += 1
-            pending.append(pend(k, int(s), fronts.popleft().result()))
+            cand, n_pixels, matched, peaks = fronts.popleft().result()
+            cand["frame_start"], cand["frame_end"] = s, s + cc.length - 1
+            cand["combined_frame"] = k
+            if peaks is not None:
+                peaks["frame"] += s
+            pending.append(Pending(cand, cc.length if cc.projection == "dp" else 0,
+                                    matched, int(s), config.correlate.tolerance,
+                                    reader.offsets[s:s + cc.length].copy(), peaks,
+                                    SUPPORT_GATE * config.frame.sigma,
+                                    config.operating.false_rate, params.exclude))
+            log.debug("combined frame %d (frames %d-%d): %d candidate pixels, %d fused points",
+                      k, s, s + cc.length - 1, n_pixels, len(cand))
             if k >= N_CORRELATE - 1:
                 # windows k-2, k-1, k: with a pool their correlation runs beside the next
                 # windows' front end; the results are taken up in order
@@ -308,19 +306,6 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
             done = pending.popleft()
             yield with_camera(emit(done, tables.empty(tables.SEGMENT)),
                               done.start + cc.length, done.peaks)
-        if triple_starts:
-            # the tail window, confirmed as the last of its own triple (windows ``step``
-            # apart, the first two overlapping the windows above and not emitted; its
-            # segments are not written: /segments holds triples of consecutive windows)
-            fronts.extend(submit(s) for s in triple_starts)
-            triple = [pend(len(starts), s, fronts.popleft().result()) for s in triple_starts]
-            corr = correlate_windows(triple, cc, params, timings)
-            for i, p in enumerate(triple):
-                p.confirm(corr.index[:, i], corr.segments, corr.positions[:, i])
-            t0 = time.perf_counter()
-            chunk = triple[-1].emit(tables.empty(tables.SEGMENT), (), triple[-2::-1])
-            lap(timings, "operate", t0)
-            yield with_camera(chunk, n_frames, triple[-1].peaks)
     finally:
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)

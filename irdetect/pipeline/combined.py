@@ -38,17 +38,19 @@ def correlate_windows(triple, cc, params: "StageParams", timings: dict | None):
     coordinates."""
     t0 = time.perf_counter()
     evidence = evidence_of(triple, cc)
-    parts = [band_correlation(triple, 0, cc.step, evidence, params.correlate)]
+    # frames between the windows: ``step``, and fewer to the tail window
+    # (``CombineConfig.tail``), which ends the sequence
+    steps = [int(b.start - a.start) for a, b in zip(triple, triple[1:])]
+    parts = [band_correlation(triple, 0, steps, evidence, params.correlate)]
     if params.fast:
         frames, cam = triple_camera(triple)
         shift = None if evidence is None else cam[np.searchsorted(frames, evidence.index)]
         scene = None if evidence is None else dataclasses.replace(
             evidence, shift=shift, leads=FAST_LEADS)
-        parts.append(band_correlation(triple, 1, cc.step, scene, params.fast_correlate, cc.length))
+        parts.append(band_correlation(triple, 1, steps, scene, params.fast_correlate, cc.length))
         if params.scene and any((p.table["band"] == 2).any() for p in triple):
             slow = None if evidence is None else dataclasses.replace(evidence, shift=shift)
-            parts.append(band_correlation(triple, 2, cc.step, slow, params.correlate,
-                                          cc.length))
+            parts.append(band_correlation(triple, 2, steps, slow, params.correlate, cc.length))
     corr = parts[0] if len(parts) == 1 else Correlation(
         segments=np.concatenate([c.segments for c in parts]),
         index=np.concatenate([c.index for c in parts]),
@@ -76,8 +78,9 @@ def triple_camera(triple) -> tuple[np.ndarray, np.ndarray]:
     return frames, np.concatenate([p.camera for p in triple])
 
 
-def band_correlation(triple, band: int, step: int, evidence, kwargs, length: int = 0) -> Correlation:
-    """``correlate`` on one band's points of 3 windows. Bands 1 and 2 are in scene
+def band_correlation(triple, band: int, steps, evidence, kwargs, length: int = 0) -> Correlation:
+    """``correlate`` on one band's points of 3 windows, ``steps`` frames apart (2 ints:
+    window 1 to 2, window 2 to 3). Bands 1 and 2 are in scene
     coordinates: their points (the merit's, in the image of each window's last frame)
     lose that frame's camera offset, and their verified positions get the offset at
     their report time."""
@@ -87,7 +90,7 @@ def band_correlation(triple, band: int, step: int, evidence, kwargs, length: int
         for t, p in zip(tables_, triple):
             t["x"] -= p.camera[length - 1, 0]
             t["y"] -= p.camera[length - 1, 1]
-    corr = correlate(*tables_, step, evidence, **kwargs)
+    corr = correlate(*tables_, steps[0], evidence, gap=steps[1], **kwargs)
     index = np.column_stack([r[corr.index[:, i]] for i, r in enumerate(rows)]) \
         if len(corr.index) else corr.index
     positions, segments = corr.positions, corr.segments
