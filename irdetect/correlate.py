@@ -179,6 +179,7 @@ def correlate(points1, points2, points3, step: int, evidence: Evidence | None = 
     if int(gap) != gap or gap < 1:
         raise ValueError(f"gap must be an integer >= 1, got {gap!r}")
     steps = (int(step), int(gap))
+    ratio = steps[1] / steps[0]          # the constant-velocity prediction's, ``_predicted``
     if not np.isfinite(max_speed) or max_speed < 0:
         raise ValueError(f"max_speed must be a number >= 0, got {max_speed!r}")
     if not np.isfinite(tolerance) or tolerance < 0:
@@ -201,11 +202,9 @@ def correlate(points1, points2, points3, step: int, evidence: Evidence | None = 
         raise ValueError(f"evidence must be an Evidence, got {type(evidence).__name__}")
     scores = [_scores(p) for p in (points1, points2, points3)]
     bounds = tuple(motion_bound(n, float(max_speed), float(tolerance)) for n in steps)
-    index = _chains(pts, bounds, float(max_deviation) if constant_velocity else None,
-                    steps[1] / steps[0])
+    index = _chains(pts, bounds, float(max_deviation) if constant_velocity else None, ratio)
     p1, p2, p3 = (pts[i][index[:, i]] for i in range(3))
-    deviation = (np.hypot(*(p3 - _predicted(p1, p2, steps[1] / steps[0])).T) if len(index)
-                 else np.zeros(0))
+    deviation = np.hypot(*(p3 - _predicted(p1, p2, ratio)).T) if len(index) else np.zeros(0)
     if constant_velocity:
         keep = deviation <= max_deviation
         index, deviation = index[keep], deviation[keep]

@@ -87,16 +87,16 @@ def _describe_results(path) -> list[str]:
 
 
 def _windows(n_frames: int, length: int, step: int, tail: bool) -> str:
-    """How the combined frames lie in the sequence: ", 4 every 12 frames from frame 0
-    and the tail window over frames 29-40"."""
+    """How the combined frames lie in the sequence: ", 3 every 12 frames from frame 0
+    and the tail window over frames 29-40", or which last frames are in none."""
     from irdetect.combine import window_starts
 
     regular = window_starts(n_frames, length=length, step=step)
     text = f", {len(regular)} every {step} frames from frame 0"
-    if tail and len(regular) and regular[-1] + length < n_frames:
-        text += f" and the tail window over frames {n_frames - length}-{n_frames - 1}"
-    elif len(regular) and regular[-1] + length < n_frames:
-        text += f" (frames {regular[-1] + length}-{n_frames - 1} in none)"
+    if len(window_starts(n_frames, length=length, step=step, tail=tail)) > len(regular):
+        return text + f" and the tail window over frames {n_frames - length}-{n_frames - 1}"
+    if len(regular) and regular[-1] + length < n_frames:
+        return text + f" (frames {regular[-1] + length}-{n_frames - 1} in none)"
     return text
 
 
