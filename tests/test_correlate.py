@@ -221,6 +221,21 @@ def test_track_sums_match_direct_interpolation(shape, bilinear, atol):
     np.testing.assert_allclose(got, want, atol=atol)
 
 
+def test_a_window_fewer_frames_on_is_predicted_at_its_own_time():
+    # the tail window 5 frames after the window before it (``gap``): a point moving 1
+    # px/frame is at 27, not at 34 where equally spaced windows would put it
+    one, two = np.array([[10.0, 10.0]]), np.array([[22.0, 10.0]])
+    c = correlate(one, two, np.array([[27.0, 10.0]]), 12, gap=5, min_score=0,
+                  max_deviation=2.0)
+    assert len(c.segments) == 1 and float(c.segments["vx"][0]) == pytest.approx(1.0)
+    assert len(correlate(one, two, np.array([[34.0, 10.0]]), 12, gap=5, min_score=0,
+                         max_deviation=2.0).segments) == 0
+    assert len(correlate(one, two, np.array([[34.0, 10.0]]), 12, min_score=0,
+                         max_deviation=2.0).segments) == 1
+    with pytest.raises(ValueError, match="gap"):
+        correlate(one, two, two, 12, gap=0)
+
+
 @pytest.mark.parametrize("seed", range(4))
 @pytest.mark.parametrize("gaps", [(12, 12), (12, 5)])
 def test_straight_chains_are_the_full_join_filtered_in_its_order(seed, gaps):

@@ -163,7 +163,7 @@ def test_local_maxima_match_the_dilation(seed):
 def test_one_and_two_threads_give_the_same_tables():
     # the kernels release the GIL: the correlation of a triple runs beside the next
     # windows' front end on the other core; results must not depend on it
-    # (100 frames: 8 windows and the tail window, whose triple's fronts run together)
+    # (100 frames: 8 windows and the tail window over frames 88-99)
     frames, _ = simulate("clutter", rng=4, n_frames=100)
     one = detect_sequence(frames, workers=1)
     two = detect_sequence(frames, workers=2)

@@ -595,8 +595,8 @@ def finish(combined: np.ndarray, peaks: np.ndarray, camera: np.ndarray,
     if fc.enabled:
         level = frame_level(shape, fc.false_rate)
         ft = frame_tracks(peaks, camera, starts, cc.length, shape=shape, n_frames=n_frames,
-                          level=level, false_rate=fc.false_rate, sigma=fc.sigma, max_speed=fc.max_speed,
-                          false_tracks=fc.false_tracks,
+                          level=level, false_rate=fc.false_rate, sigma=fc.sigma,
+                          max_speed=fc.max_speed, false_tracks=fc.false_tracks,
                           confirm_m=fc.confirm_m, confirm_n=fc.confirm_n,
                           clutter_speed=fc.clutter_speed)
     else:
