@@ -383,7 +383,7 @@ class _TrackerBase:
 
         A one-hit tentative track A born two frames ago at p1 (px, the regions'
         coordinates), one B born last frame at p2 within ``max_speed`` px of it, and a free
-        region of this frame at p3 within GATE sqrt(6) r px of the constant-velocity
+        region of this frame at p3 within GATE_CHAIN sqrt(6) r px of the constant-velocity
         prediction 2 p2 - p1 (r the regions' position sigma: the second difference of three
         positions has sigma sqrt(6) r) make one track: A takes the three hits, velocity
         (p3 - p1) / 2 px/frame, and B ends. The closest predictions are taken first; each
@@ -400,7 +400,7 @@ class _TrackerBase:
                  if not t.confirmed and not t.dead and len(t.meas) == 1]
         first = [t for t in young if t.born == frame - 2]
         second = [t for t in young if t.born == frame - 1]
-        free = np.flatnonzero(~blocked & (regions["area"] <= self.max_birth_area))
+        free = self._free(regions, blocked)
         if not first or not second or not len(free):
             return taken
         p1 = np.array([t.meas[0][1:3] for t in first])
@@ -445,8 +445,13 @@ class _TrackerBase:
         t.area = (t.area + other.area + float(reg["area"])) / 3.0
         other.dead = True
 
+    def _free(self, regions: np.ndarray, blocked: np.ndarray) -> np.ndarray:
+        """Indices of the regions a track may start from: not ``blocked`` (taken or no
+        seed) and no larger than ``max_birth_area``."""
+        return np.flatnonzero(~blocked & (regions["area"] <= self.max_birth_area))
+
     def _births(self, frame: int, regions: np.ndarray, z: np.ndarray, blocked: np.ndarray) -> None:
-        free = np.flatnonzero(~blocked & (regions["area"] <= self.max_birth_area))
+        free = self._free(regions, blocked)
         room = self.max_tracks - len(self.tracks)
         if room <= 0 or len(free) == 0:
             return
