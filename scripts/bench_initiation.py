@@ -247,7 +247,7 @@ def _ir_seed(task):
     t0 = time.perf_counter()
     out = detect_sequence(frames)
     dt = time.perf_counter() - t0
-    s = score_image_tracks(out["tracks"], truth, sigma=1.5)
+    s = score_image_tracks(out["tracks"], truth, sigma=1.5, camera=out["camera"])
     return s["pt"], s["n_tracks"], s["n_false"], list(s["speed_error"]), len(out["detections"]), dt
 
 

@@ -54,7 +54,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     frames, truth = long_sequence(args.segments)
     config = ProcessConfig()
-    detections = detect_sequence(frames, config)["detections"]
+    out = detect_sequence(frames, config)
+    detections, camera = out["detections"], out["camera"]
     rows = []
     for window in WINDOWS:
         cfg = dataclasses.replace(config, initiate=dataclasses.replace(config.initiate,
@@ -62,8 +63,8 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         tracks = initiate_tracks(detections, cfg)
         seconds = time.perf_counter() - t0
-        line = score_image_tracks(tracks, truth)
-        path = score_track_paths(tracks, truth, gate=6.0)
+        line = score_image_tracks(tracks, truth, camera=camera)
+        path = score_track_paths(tracks, truth, gate=6.0, camera=camera)
         err = line["speed_error"]
         rows.append(f"| {window or 'whole sequence (0)'} | {len(tracks)} | "
                     f"{line['pt_overall']:.2f} | {line['n_false']} | "

@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+import pytest
 
 from irdetect.cli import main
 from irdetect.io import write_sequence
@@ -62,3 +63,34 @@ def test_path_rule_holds_a_wiggling_target_and_rejects_a_track_out_of_time():
     assert score_track_paths(tracks[1:2], truth, gate=6.0)["pt_overall"] == 0.0
     line = score_image_tracks(tracks, truth, sigma=1.5)       # the line rule: a 5.6 px
     assert line["pt_overall"] == 0.0                          # wiggle is beyond 3 x 1.5 px
+
+
+def test_line_rule_measures_a_scene_track_in_scene_coordinates():
+    # a target straight in the scene under a camera panning (3, -2) px/frame: in the
+    # image it moves (3.5, -1.8) px/frame; the scene track's line and velocity are the
+    # scene's (irdetect process under a moving camera), its rho given relative to the
+    # camera's offset at its first frame
+    from irdetect import tables
+    from irdetect.metrics.initiation import score_image_tracks
+
+    f = np.arange(60)
+    camera = np.column_stack([3.0 * f, -2.0 * f])
+    truth = tables.from_columns(tables.TRUTH, frame=f, target=np.zeros(60, int),
+                                x=40 + 0.5 * f + camera[:, 0], y=300 + 0.2 * f + camera[:, 1])
+    tracks = tables.from_columns(tables.TRACK, n=1)
+    start = 10
+    x0, y0 = truth["x"][start], truth["y"][start]
+    theta = np.arctan2(0.2, 0.5) + np.pi / 2
+    for name, value in dict(frame_start=start, frame_end=59, vx=0.5, vy=0.2, x0=x0, y0=y0,
+                            theta=theta, rho=x0 * np.cos(theta) + y0 * np.sin(theta),
+                            scene=True).items():
+        tracks[name][0] = value
+    line = score_image_tracks(tracks, truth, sigma=1.5, camera=camera)
+    assert line["pt_overall"] == 1.0 and line["n_false"] == 0
+    assert line["speed_error"][0] < 1e-9                 # against the scene's velocity
+    # the same track taken for an image line (the rule before): false
+    image = tracks.copy()
+    image["scene"] = False
+    assert score_image_tracks(image, truth, sigma=1.5)["n_false"] == 1
+    with pytest.raises(ValueError, match="camera"):
+        score_image_tracks(tracks, truth, sigma=1.5)

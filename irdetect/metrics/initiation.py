@@ -15,7 +15,8 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 
-def match_lines(rho, theta, targets, *, sigma, k: float = 3.0):
+def match_lines(rho, theta, targets, *, sigma, k: float = 3.0, scene=None,
+                scene_targets=None):
     """One-to-one assignment of track lines to targets.
 
     Parameters
@@ -28,6 +29,12 @@ def match_lines(rho, theta, targets, *, sigma, k: float = 3.0):
         Measurement sigma (per target position when a list).
     k : float
         Gate in sigmas.
+    scene : array_like of bool of shape (K,), optional
+        Tracks whose lines are in scene coordinates: they are measured against
+        ``scene_targets`` (the same positions, in the same order, minus the camera's
+        offset of their frames) instead of ``targets``.
+    scene_targets : list of ndarray of shape (n_j, 2), optional
+        With ``scene``.
 
     Returns
     -------
@@ -40,14 +47,18 @@ def match_lines(rho, theta, targets, *, sigma, k: float = 3.0):
     out = np.full(J, -1, np.int64)
     if J == 0 or K == 0:
         return out
+    scene = np.zeros(K, bool) if scene is None else np.asarray(scene, bool)
     cost = np.full((J, K), np.inf)
     for j, pos in enumerate(targets):                     # a handful of targets
-        pos = np.asarray(pos, float).reshape(-1, 2)
-        s = np.broadcast_to(np.asarray(sigma[j] if isinstance(sigma, list) else sigma, float),
-                            (pos.shape[0],))
-        d = np.abs(np.outer(pos[:, 0], np.cos(theta)) + np.outer(pos[:, 1], np.sin(theta))
-                   - rho[None, :]) / s[:, None]
-        cost[j] = d.max(axis=0)
+        s = np.asarray(sigma[j] if isinstance(sigma, list) else sigma, float)
+        for cols, xy in ((~scene, pos), (scene, None if scene_targets is None
+                                         else scene_targets[j])):
+            if not cols.any():
+                continue
+            xy = np.asarray(xy, float).reshape(-1, 2)
+            d = np.abs(np.outer(xy[:, 0], np.cos(theta[cols]))
+                       + np.outer(xy[:, 1], np.sin(theta[cols])) - rho[None, cols])
+            cost[j, cols] = (d / np.broadcast_to(s, (len(xy),))[:, None]).max(axis=0)
     ok = cost <= k
     big = 1e6
     r, c = linear_sum_assignment(np.where(ok, cost, big))
@@ -166,11 +177,18 @@ def score_scan_tracks(tracks, truth, *, windows, scan_times, sigma, k: float = 3
 
 
 def score_image_tracks(tracks, truth, *, sigma: float = 1.5, k: float = 3.0,
-                       frames: tuple | None = None):
+                       frames: tuple | None = None, camera=None):
     """Score ``tables.TRACK`` rows of an image sequence against ``tables.TRUTH``.
 
     The whole sequence (or ``frames`` = (first, last)) is one window. ``sigma`` is the
-    position error of a detection in pixels.
+    position error of a detection in pixels. A ``scene`` track's line and velocity are
+    in scene coordinates (``irdetect.initiate.track_positions``): it is measured against
+    the true positions minus the camera's offset C_f of their frames (its rho taken
+    back by C_frame_start, the offset its line is given relative to) and the true
+    velocity in those coordinates, so ``camera`` (``/camera``: a ``tables.CAMERA`` table
+    or an array (T, 2)) is needed when the tracks hold any; without it the line rule
+    judged a moving camera's scene tracks against the image positions, and found every
+    track of a panning clip false.
 
     Returns
     -------
@@ -178,20 +196,37 @@ def score_image_tracks(tracks, truth, *, sigma: float = 1.5, k: float = 3.0,
         ``pt`` per target, ``pt_overall``, ``pc``, ``n_tracks``, ``n_false``,
         ``speed_error`` (relative, matched tracks).
     """
+    from irdetect.initiate.images import camera_at
+
     tg = np.unique(truth["target"])
-    pos, vel = [], []
+    rho = np.asarray(tracks["rho"], float).copy()
+    theta = np.asarray(tracks["theta"], float)
+    scene = (np.asarray(tracks["scene"], bool) if "scene" in (tracks.dtype.names or ())
+             else np.zeros(len(tracks), bool))
+    if scene.any():
+        if camera is None:
+            raise ValueError("scene tracks need the camera's offsets (/camera)")
+        start = camera_at(camera, tracks["frame_start"][scene])
+        rho[scene] -= start[:, 0] * np.cos(theta[scene]) + start[:, 1] * np.sin(theta[scene])
+    pos, moved = [], []          # per target: image positions, and minus the camera's
     for tid in tg:
         rows = truth[truth["target"] == tid]
         if frames is not None:
             rows = rows[(rows["frame"] >= frames[0]) & (rows["frame"] <= frames[1])]
         rows = rows[np.argsort(rows["frame"])]
-        pos.append(np.column_stack([rows["x"], rows["y"]]))
-        f = rows["frame"].astype(float)
-        vel.append((np.polyfit(f, rows["x"], 1)[0], np.polyfit(f, rows["y"], 1)[0])
-                   if len(rows) > 1 else (0.0, 0.0))
-    m = match_lines(tracks["rho"], tracks["theta"], pos, sigma=sigma, k=k)
-    err = [math.hypot(tracks["vx"][ti] - vel[j][0], tracks["vy"][ti] - vel[j][1])
-           / max(math.hypot(*vel[j]), 1e-12) for j, ti in enumerate(m) if ti >= 0]
+        pos.append((rows["frame"].astype(float), np.column_stack([rows["x"], rows["y"]])))
+        moved.append((pos[-1][0], pos[-1][1] - camera_at(camera, pos[-1][0])
+                      if scene.any() else pos[-1][1]))
+    m = match_lines(rho, theta, [xy for _, xy in pos], sigma=sigma, k=k, scene=scene,
+                    scene_targets=[xy for _, xy in moved])
+    err = []
+    for j, ti in enumerate(m):
+        if ti >= 0:
+            f, xy = (moved if scene[ti] else pos)[j]
+            v = ((np.polyfit(f, xy[:, 0], 1)[0], np.polyfit(f, xy[:, 1], 1)[0])
+                 if len(f) > 1 else (0.0, 0.0))
+            err.append(math.hypot(tracks["vx"][ti] - v[0], tracks["vy"][ti] - v[1])
+                       / max(math.hypot(*v), 1e-12))
     n_false = len(tracks) - int((m >= 0).sum())
     return {"targets": tg, "pt": (m >= 0).astype(float),
             "pt_overall": float((m >= 0).mean()) if len(tg) else float("nan"),
@@ -293,9 +328,9 @@ def evaluate_image_tracks(results, truth, *, sigma: float | None = None,
     """
     if sigma is None:
         sigma = float(results.config.get("initiate", {}).get("sigma", 1.5))
-    s = score_image_tracks(results["tracks"], truth, sigma=sigma)
-    path = score_track_paths(results["tracks"], truth, gate=2 * gate,
-                             camera=results["camera"] if "camera" in results else None)
+    camera = results["camera"] if "camera" in results else None
+    s = score_image_tracks(results["tracks"], truth, sigma=sigma, camera=camera)
+    path = score_track_paths(results["tracks"], truth, gate=2 * gate, camera=camera)
     return {**_summary(s["targets"], s["pt"], s["pc"], s["n_tracks"], s["n_false"],
                        s["speed_error"]),
             "pt_path": path["pt_overall"], "n_false_path": path["n_false"]}
