@@ -193,6 +193,28 @@ def test_cli_plot_without_the_sequence_and_bad_input(plotted, cli, tmp_path, cap
     assert not (tmp_path / "x.png").exists() and not (tmp_path / "fig.gif").exists()
 
 
+def test_plot_finds_the_input_where_process_read_it(tmp_path, cli, monkeypatch, caplog):
+    # results written to another folder, plot run from a third: the input is found by the
+    # path process recorded (input_path), as evaluate finds it, not only beside the results
+    frames, truth = simulate("wan2008", rng=2, n_frames=36, height=48, width=64, n_targets=1,
+                             snr=8.0)
+    (tmp_path / "data").mkdir()
+    (tmp_path / "out").mkdir()
+    (tmp_path / "elsewhere").mkdir()
+    write_sequence(tmp_path / "data" / "seq.h5", frames, truth=truth)
+    code, _, err = cli("process", tmp_path / "data" / "seq.h5", "-o",
+                       tmp_path / "out" / "res.h5", "-q")
+    assert code == 0, err
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    code, _, err = cli("plot", tmp_path / "out" / "res.h5", "-o", "fig.png", "--truth")
+    assert code == 0, err
+    assert "not found" not in caplog.text
+    assert cv2.imread("fig.png") is not None
+    from irdetect.commands.plot import find_sequence
+    from irdetect.io import read_results
+    assert find_sequence(read_results(tmp_path / "out" / "res.h5")) == tmp_path / "data" / "seq.h5"
+
+
 def test_plot_draws_the_tracker_paths_of_track_results(tmp_path, cli):
     """The results of irdetect track: one panel, each path in the tracker's colour where
     its points are, no Hough panel (there are no detections to vote)."""

@@ -155,17 +155,11 @@ def _load_truth(results, results_path, truth_path):
     input sequence, by the rule of ``irdetect.io.find_truth``."""
     from irdetect.io import find_truth
 
+    from irdetect.commands.plot import find_sequence
+
     sequence = None
     if truth_path is None:
-        candidates = [results.attrs.get("input_path"), results.attrs.get("input")]
-        folder = Path(results_path).resolve().parent
-        for name in filter(None, candidates):
-            for path in (Path(name), folder / name):
-                if path.exists():
-                    sequence = path
-                    break
-            if sequence is not None:
-                break
+        sequence = find_sequence(results)
         if sequence is None:
             raise InputError("no --truth given and the results' input file was not found",
                              results_path)

@@ -25,7 +25,7 @@ def add_arguments(p):
     p.add_argument("-o", "--output", required=True,
                    help="figure file (.png, .jpg, .tif, .pdf or .svg)")
     p.add_argument("--sequence", help="the sequence the results were made from (default: "
-                   "the results' input attribute, looked up beside the results file)")
+                   "the input where it was read, else its name beside the results file)")
     p.add_argument("--dataset", help=DATASET_HELP)
     p.add_argument("--raw", action="store_true",
                    help="max projection of the raw frames (default: of the suppressed frames)")
@@ -45,14 +45,18 @@ def add_arguments(p):
 
 
 def find_sequence(results, given=None):
-    """Path of the sequence: ``given``, else the results' input beside the results file
-    or in the current folder; None when not found."""
+    """Path of the sequence: ``given``, else the results' input where it was read
+    (``input_path``), beside the results file or in the current folder; None when not
+    found."""
     if given:
         return given
+    where = results.attrs.get("input_path")
+    if where and Path(where).exists():
+        return Path(where)
     name = results.attrs.get("input")
     if not name:
         return None
-    for folder in (Path(results.path).parent, Path(".")):
+    for folder in (Path(results.path).resolve().parent, Path(".")):
         if (folder / name).exists():
             return folder / name
     return None
