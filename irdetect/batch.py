@@ -508,8 +508,13 @@ def _check_collisions(paths: list[Path], outputs: list[Path]) -> None:
     seen: dict[Path, Path] = {}
     for p, o in zip(paths, outputs):
         if o in seen:
+            # NAME/frames of several recordings (a recording folder: its frames and
+            # truth.txt): the recording folders themselves are named apart
+            hint = (f", or give the recording folders holding them ({seen[o].parent.name}, "
+                    f"{p.parent.name}) instead" if p.is_dir() and p.name == seen[o].name
+                    and p.parent.name != seen[o].parent.name else "")
             raise InputError(f"{seen[o]} and {p} would both write {o.name}; "
-                             "process them into different --out-dir folders", p)
+                             f"process them into different --out-dir folders{hint}", p)
         seen[o] = p
 
 

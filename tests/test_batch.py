@@ -105,9 +105,24 @@ def test_same_results_name_is_refused(tmp_path):
     for sub in ("a", "b"):
         (tmp_path / sub).mkdir()
         _simulate(tmp_path / sub / "seq.h5", seed=2)
-    with pytest.raises(InputError, match="would both write seq.irdetect.h5"):
+    with pytest.raises(InputError, match="would both write seq.irdetect.h5") as err:
         run_batch([tmp_path / "a" / "seq.h5", tmp_path / "b" / "seq.h5"], tmp_path / "out",
                   jobs=1)
+    assert "recording folders" not in str(err.value)
+    # recordings laid out as NAME/frames/ (frames and truth.txt): their folders are the
+    # inputs to give, and they are processed under their own names
+    frames, _ = simulate("wan2008", rng=3, n_frames=36, height=40, width=48, n_targets=1)
+    for sub in ("rec1", "rec2"):
+        (tmp_path / sub / "frames").mkdir(parents=True)
+        for i, f in enumerate(frames):
+            cv2.imwrite(str(tmp_path / sub / "frames" / f"{i:03d}.png"), f.astype(np.uint8))
+    with pytest.raises(InputError, match=r"recording folders holding them \(rec1, rec2\)"):
+        run_batch([tmp_path / "rec1" / "frames", tmp_path / "rec2" / "frames"],
+                  tmp_path / "out", jobs=1)
+    report = run_batch([tmp_path / "rec1", tmp_path / "rec2"], tmp_path / "out", jobs=1)
+    assert sorted(p.name for p in (tmp_path / "out").glob("*.irdetect.h5")) == [
+        "rec1.irdetect.h5", "rec2.irdetect.h5"]
+    assert all(r.status == "ok" for r in report.rows)
 
 
 def test_fingerprint_sees_content_not_mtime(tmp_path):
