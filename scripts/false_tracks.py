@@ -236,7 +236,7 @@ def main(argv=None) -> int:
         "## `irdetect track`",
         "",
         f"A track is false when fewer than {PATH_SHARE:.0%} of its points lie within 2 x gate "
-        "(bench_tracking's: 5 px easy1 / easy3, 3 px the others) of the target: {sum(' | whole | ' in x for x in t_lines)} of {n_tracker} tracks on "
+        f"(bench_tracking's: 5 px easy1 / easy3, 3 px the others) of the target: {sum(' | whole | ' in x for x in t_lines)} of {n_tracker} tracks on "
         f"the {len(folders)} folders, and {sum(' | crop ' in x for x in t_lines)} on their "
         f"clutter-only crops ({n_crop_frames} frames; bench_tracking's strips, where every "
         "track counts as false).",
