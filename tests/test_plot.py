@@ -210,7 +210,7 @@ def test_plot_finds_the_input_where_process_read_it(tmp_path, cli, monkeypatch, 
     assert code == 0, err
     assert "not found" not in caplog.text
     assert cv2.imread("fig.png") is not None
-    from irdetect.commands.plot import find_sequence
+    from irdetect.commands import find_sequence
     from irdetect.io import read_results
     assert find_sequence(read_results(tmp_path / "out" / "res.h5")) == tmp_path / "data" / "seq.h5"
 

@@ -1,6 +1,7 @@
 """One module per subcommand: ``add_arguments(parser)`` and ``run(args) -> int``."""
 
 import dataclasses
+from pathlib import Path
 
 #: what a sequence argument may be (``irdetect.io.open_sequence``), for the help texts
 SEQUENCE_KINDS = "HDF5 file, folder of images, multi-page TIFF, video file, .npy or .mat"
@@ -35,3 +36,21 @@ def with_input_options(config, args):
     if args.exclude:
         config = dataclasses.replace(config, exclude=tuple(config.exclude) + tuple(args.exclude))
     return config
+
+
+def find_sequence(results, given=None):
+    """Path of the sequence: ``given``, else the results' input where it was read
+    (``input_path``), beside the results file or in the current folder; None when not
+    found."""
+    if given:
+        return given
+    where = results.attrs.get("input_path")
+    if where and Path(where).exists():
+        return Path(where)
+    name = results.attrs.get("input")
+    if not name:
+        return None
+    for folder in (Path(results.path).resolve().parent, Path(".")):
+        if (folder / name).exists():
+            return folder / name
+    return None

@@ -153,9 +153,8 @@ def evaluate(results_path, truth_path=None, *, gate: float = 3.0,
 def _load_truth(results, results_path, truth_path):
     """(TRUTH table, sequence shape or None): ``--truth``, else the truth of the results'
     input sequence, by the rule of ``irdetect.io.find_truth``."""
+    from irdetect.commands import find_sequence
     from irdetect.io import find_truth
-
-    from irdetect.commands.plot import find_sequence
 
     sequence = None
     if truth_path is None:

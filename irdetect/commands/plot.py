@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-from irdetect.commands import DATASET_HELP, TRUTH_KINDS
+from irdetect.commands import DATASET_HELP, TRUTH_KINDS, find_sequence
 from irdetect.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -42,24 +42,6 @@ def add_arguments(p):
     p.add_argument("--gate", type=float, default=3.0,
                    help="--roc: match distance in px, as for evaluate (3)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
-
-
-def find_sequence(results, given=None):
-    """Path of the sequence: ``given``, else the results' input where it was read
-    (``input_path``), beside the results file or in the current folder; None when not
-    found."""
-    if given:
-        return given
-    where = results.attrs.get("input_path")
-    if where and Path(where).exists():
-        return Path(where)
-    name = results.attrs.get("input")
-    if not name:
-        return None
-    for folder in (Path(results.path).resolve().parent, Path(".")):
-        if (folder / name).exists():
-            return folder / name
-    return None
 
 
 def run(args) -> int:

@@ -48,17 +48,20 @@ def match_lines(rho, theta, targets, *, sigma, k: float = 3.0, scene=None,
     if J == 0 or K == 0:
         return out
     scene = np.zeros(K, bool) if scene is None else np.asarray(scene, bool)
+
+    def largest(xy, s, cols):
+        """The largest distance (in sigmas) of the positions xy from each line of cols."""
+        xy = np.asarray(xy, float).reshape(-1, 2)
+        d = np.abs(np.outer(xy[:, 0], np.cos(theta[cols]))
+                   + np.outer(xy[:, 1], np.sin(theta[cols])) - rho[None, cols])
+        return (d / np.broadcast_to(s, (len(xy),))[:, None]).max(axis=0)
+
     cost = np.full((J, K), np.inf)
     for j, pos in enumerate(targets):                     # a handful of targets
         s = np.asarray(sigma[j] if isinstance(sigma, list) else sigma, float)
-        for cols, xy in ((~scene, pos), (scene, None if scene_targets is None
-                                         else scene_targets[j])):
-            if not cols.any():
-                continue
-            xy = np.asarray(xy, float).reshape(-1, 2)
-            d = np.abs(np.outer(xy[:, 0], np.cos(theta[cols]))
-                       + np.outer(xy[:, 1], np.sin(theta[cols])) - rho[None, cols])
-            cost[j, cols] = (d / np.broadcast_to(s, (len(xy),))[:, None]).max(axis=0)
+        cost[j, ~scene] = largest(pos, s, ~scene)
+        if scene.any():
+            cost[j, scene] = largest(scene_targets[j], s, scene)
     ok = cost <= k
     big = 1e6
     r, c = linear_sum_assignment(np.where(ok, cost, big))
