@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 
 from irdetect import tables
+from irdetect.combine import window_starts
 from irdetect.errors import InputError
 from irdetect.exclude import exclusion_mask
 
@@ -157,6 +158,9 @@ class Overlay:
     #: outlines of the excluded pixels (``irdetect.exclude``): int32 arrays (n, 1, 2) of
     #: (x, y) px, as ``cv2.findContours`` gives them
     excluded: tuple = ()
+    #: the window (``combined_frame``) whose detections and candidates each frame shows
+    #: (``shown_windows``), or None: every window that holds the frame
+    shown: np.ndarray | None = None
 
     def track_at(self, row, frames) -> tuple[np.ndarray, np.ndarray]:
         """(x, y) of one TRACK row in ``frames`` (a scene track follows the camera)."""
@@ -201,12 +205,18 @@ class Overlay:
         return rows[rows["frame_end"] >= t]
 
     def detections_at(self, t: int) -> np.ndarray:
-        """Detections whose window [frame_start, frame_end] holds frame ``t``."""
-        return self._window_rows(self.detections, t)
+        """Detections whose window [frame_start, frame_end] holds frame ``t`` (of the
+        window ``shown`` names for it, when set)."""
+        return self._shown(self._window_rows(self.detections, t), t)
 
     def candidates_at(self, t: int) -> np.ndarray:
-        """Unconfirmed candidates whose window holds frame ``t``."""
-        return self._window_rows(self.candidates, t)
+        """Unconfirmed candidates whose window holds frame ``t`` (as ``detections_at``)."""
+        return self._shown(self._window_rows(self.candidates, t), t)
+
+    def _shown(self, rows, t):
+        if self.shown is None or not len(rows) or not 0 <= t < len(self.shown):
+            return rows
+        return rows[rows["combined_frame"] == self.shown[t]]
 
     def tracks_at(self, t: int) -> np.ndarray:
         """Initiated tracks with frame_start <= t <= frame_end."""
@@ -266,6 +276,21 @@ def _to_px(x, y, scale):
 def window_colour(combined_frame: int) -> tuple[int, int, int]:
     """BGR colour of the detections of one combined frame."""
     return WINDOW_PALETTE[int(combined_frame) % len(WINDOW_PALETTE)]
+
+
+def shown_windows(n_frames: int, starts, length: int) -> np.ndarray:
+    """The window each frame shows (n_frames,) int: of the windows [s, s + length) of
+    ``starts`` that hold it, the one whose middle frame is nearest (the earlier on a tie);
+    -1 where none does. Overlapping windows (``combine.step`` < ``length``, the tail
+    window over the last frames) would otherwise draw one target's detection once per
+    window, in two colours."""
+    t = np.arange(n_frames)[:, None]
+    s = np.asarray(starts, float)[None, :]
+    holds = (t >= s) & (t < s + length)
+    if not holds.shape[1]:
+        return np.full(n_frames, -1)
+    dist = np.where(holds, np.abs(t - (s + (length - 1) / 2.0)), np.inf)
+    return np.where(holds.any(axis=1), dist.argmin(axis=1), -1)
 
 
 def draw_overlay(image: np.ndarray, t: int, overlay: Overlay, style: Style = Style(), *,
@@ -644,6 +669,10 @@ def write_video(source, results, output, *, fps: float | None = None,
     overlay = Overlay.from_tables(results.tables, truth, run_exclusions(config, (H, W)))
     style = Style(scale=float(scale), trail=int(trail), candidates=candidates)
     length = int(results.attrs.get("combined_length", 12))
+    starts = window_starts(T, length=length,
+                           step=int(results.attrs.get("combined_step", length)),
+                           tail=bool(config.get("combine", {}).get("tail", False)))
+    overlay.shown = shown_windows(T, starts, length)
     sup_params = dict(config.get("suppress", {}))
     comb_params = {k: v for k, v in config.get("combine", {}).items()
                    if k not in ("length", "step")}
@@ -696,10 +725,11 @@ def write_video(source, results, output, *, fps: float | None = None,
                 else:
                     picture = pictures[0]
                 if legend:
+                    k = int(overlay.shown[t])
                     if items:   # the detection swatch takes the colour of this window
-                        items[0] = (items[0][0], window_colour(t // length))
-                    window = (f"window {t // length}: frames {t // length * length}-"
-                              f"{min(T, (t // length + 1) * length) - 1}")
+                        items[0] = (items[0][0], window_colour(max(k, 0)))
+                    window = (f"window {k}: frames {starts[k]}-{starts[k] + length - 1}"
+                              if k >= 0 else "in no window")
                     picture = np.vstack([picture, status_strip(
                         picture.shape[1], t, T, counts, window=window, legend=items,
                         font_scale=max(0.4, style.font_scale))])

@@ -419,3 +419,40 @@ def test_the_excluded_pixels_are_outlined(scene, tmp_path):
                           {**attrs, "config": json.dumps({"exclude": [str(tmp_path / "x.png")]})})
     with open_sequence(scene["seq"]) as src:
         assert write_video(src, read_results(gone), tmp_path / "png2", scale=1.0)["frames"] == T
+
+
+def test_each_frame_shows_one_window_where_windows_overlap(tmp_path):
+    # 41 frames: windows 0-2 every 12 frames and the tail window 3 over frames 29-40;
+    # frames 29-35 lie in windows 2 and 3, and show the window whose middle is nearer
+    from irdetect.render import shown_windows
+
+    n = 41
+    shown = shown_windows(n, [0, 12, 24, 29], L)
+    assert shown[:29].tolist() == [0] * 12 + [1] * 12 + [2] * 5
+    assert shown[29:33].tolist() == [2] * 4 and shown[33:].tolist() == [3] * 8
+    assert shown_windows(40, [0, 12, 24], L)[36:].tolist() == [-1] * 4   # in no window
+    frames, truth = simulate("wan2008", rng=5, n_frames=n, height=H, width=W, n_targets=1,
+                             snr=6.0, speed=[0.5, 0.5], directions=[20.0])
+    seq = write_sequence(tmp_path / "seq.h5", frames, truth=truth)
+    det = tables.from_columns(
+        tables.DETECTION, x=[20.0, 24.0, 28.0, 30.0], y=[20.0] * 4,
+        frame_start=[0, 12, 24, 29], frame_end=[11, 23, 35, 40], combined_frame=[0, 1, 2, 3],
+        intensity=np.ones(4), score=np.ones(4))
+    found = {"detections": det, "candidates": tables.empty("candidates"),
+             "segments": tables.empty("segments"), "tracks": tables.empty("tracks")}
+    attrs = {"input": "seq.h5", "combined_length": L, "combined_step": L, "n_frames": n,
+             "frame_height": H, "frame_width": W, "config": '{"combine": {"tail": true}}'}
+    res = read_results(_write_results(tmp_path / "res.h5", found, attrs))
+    out = tmp_path / "frames"
+    with open_sequence(seq) as src:
+        write_video(src, res, out, scale=SCALE, legend=False)
+    _, images = _read_png_folder(out)
+    for t, k in ((30, 2), (34, 3)):
+        colour = _colourful(images[t])
+        x = det["x"][k]
+        here = _near(colour.shape, [((x + 0.5) * SCALE - 0.5, (20 + 0.5) * SCALE - 0.5)], 9)
+        other = 5 - k                          # the other window of the two
+        there = _near(colour.shape, [((det["x"][other] + 0.5) * SCALE - 0.5,
+                                      (20 + 0.5) * SCALE - 0.5)], 9)
+        assert (colour & here).sum() > 10, f"frame {t}: window {k}'s detection not drawn"
+        assert not (colour & there & ~here).any(), f"frame {t}: window {other}'s drawn too"
