@@ -15,6 +15,23 @@ def test_simulate_then_info(cli):
     assert "20 frames of 320x240" in out and "5 target(s)" in out
 
 
+def test_info_names_a_recording_folders_truth_and_says_when_it_does_not_fit(cli, tmp_path):
+    import cv2
+
+    rec = tmp_path / "rec"
+    (rec / "frames").mkdir(parents=True)
+    for i in range(5):
+        cv2.imwrite(str(rec / "frames" / f"{i:03d}.png"), np.full((16, 20), 40 + i, np.uint8))
+    (rec / "truth.txt").write_text("".join(f"{3 + i} 4\n" for i in range(5)))
+    for where in (rec, rec / "frames"):            # the recording folder or its frames
+        code, out, _ = cli("info", where)
+        assert code == 0
+        assert f"truth: {rec / 'truth.txt'}, 5 positions of one target" in out
+    (rec / "truth.txt").write_text("3 4\n" * 4)    # a line short
+    code, out, _ = cli("info", rec)
+    assert code == 0 and "unusable: 4 annotation lines for 5 frames" in out
+
+
 def test_info_on_results_names_the_settings_that_are_not_the_defaults(cli, tmp_path):
     assert cli("simulate", "s.h5", "--seed", "1", "--frames", "36", "--size", "64x48")[0] == 0
     assert cli("process", "s.h5", "-o", "a.h5", "-q")[0] == 0

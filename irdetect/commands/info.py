@@ -9,8 +9,9 @@ import h5py
 
 from irdetect.commands import DATASET_HELP, SEQUENCE_KINDS
 from irdetect.errors import InputError, check_input_file
-from irdetect.io import open_sequence, read_results
+from irdetect.io import open_sequence, read_point_annotations, read_results
 from irdetect.io.sources import LOSSY_CODECS
+from irdetect.io.truth import recording_truth
 
 RESULT_TABLES = ("detections", "candidates", "segments", "tracks", "track_points", "scans")
 
@@ -56,6 +57,13 @@ def describe(path, dataset=None) -> list[str]:
         if src.truth is not None:
             targets = len(set(src.truth["target"].tolist()))
             lines.append(f"  truth: {len(src.truth)} rows, {targets} target(s)")
+        elif (found := recording_truth(src.path)) is not None:
+            # what evaluate, video and plot take as its truth without --truth
+            try:
+                n = len(read_point_annotations(found, t))
+                lines.append(f"  truth: {found}, {n} positions of one target")
+            except InputError as exc:
+                lines.append(f"  truth: {found} unusable: {exc.message}")
     return lines
 
 
