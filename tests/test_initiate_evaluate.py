@@ -26,6 +26,7 @@ def test_evaluate_scores_the_tracks_of_process(tmp_path, capsys):
     assert scores["pt_overall"] == 1.0 and scores["n_false"] == 0
     assert [scores[f"pt target {j}"] for j in range(3)] == [1.0, 1.0, 1.0]
     assert scores["speed_error_median"] < 0.1
+    assert scores["n_false_path"] == 0 and scores["false_path_tracks"] == []
 
 
 def test_evaluate_scores_the_scan_tracks_of_initiate(tmp_path, capsys):
@@ -58,8 +59,10 @@ def test_path_rule_holds_a_wiggling_target_and_rejects_a_track_out_of_time():
             tracks[name][i] = value
     theta = np.arctan2(0.2, 0.5) + np.pi / 2
     tracks["theta"], tracks["rho"] = theta, 50 * np.cos(theta) + 80 * np.sin(theta)
+    tracks["track_id"] = [10, 11, 12]
     path = score_track_paths(tracks, truth, gate=6.0)
     assert path["pt_overall"] == 1.0 and path["n_false"] == 2      # the late one, the copy
+    assert len(path["false_ids"]) == 2 and 11 in path["false_ids"]     # named by track_id
     assert score_track_paths(tracks[1:2], truth, gate=6.0)["pt_overall"] == 0.0
     line = score_image_tracks(tracks, truth, sigma=1.5)       # the line rule: a 5.6 px
     assert line["pt_overall"] == 0.0                          # wiggle is beyond 3 x 1.5 px

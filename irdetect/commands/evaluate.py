@@ -9,7 +9,8 @@ table it holds:
                     pixel-level false-alarm rate (3x3 px per false detection)
   track initiation  Pt per target and overall, Pc (share of false tracks), speed error;
                     pt_path: a track within 2 x --gate px of its target in 80 % of its
-                    frames; on scans the same per window, and OSPA, GOSPA
+                    frames, and false_path_tracks: the ids of the tracks false by it;
+                    on scans the same per window, and OSPA, GOSPA
   tracking          CLEAR-MOT (MOTA, MOTP in px), IDF1 and identity switches
   IRSTD (--irstd)   Pd and Fa as infrared small-target papers compute them from masks
                     (pyirstdmetrics): a target is detected when a predicted region's
@@ -176,6 +177,7 @@ LEGEND = {
     "pc": "pc = false tracks / tracks",
     "speed_error_median": "speed_error = |track - true velocity| / true speed",
     "pt_path": "pt_path = pt, a track within 2 x gate of its target in 80 % of its frames",
+    "false_path_tracks": "false_path_tracks = track_id of the tracks false by that rule",
     "mota": "mota = 1 - (misses + false + switches) / true positions",
     "motp": "motp = mean distance of the matches (px)",
     "ospa_mean": "ospa = optimal subpattern assignment distance per window (m)",

@@ -269,7 +269,8 @@ def score_track_paths(tracks, truth, *, gate: float, min_fraction: float = 0.8,
     -------
     dict
         ``targets``, ``pt`` (1 per followed target), ``pt_overall``, ``n_tracks``,
-        ``n_false`` (tracks that follow no target, or a target another track holds).
+        ``n_false`` (tracks that follow no target, or a target another track holds) and
+        ``false_ids`` (their ``track_id``, ascending).
     """
     tg = np.unique(truth["target"])
     n = len(tracks)
@@ -286,13 +287,15 @@ def score_track_paths(tracks, truth, *, gate: float, min_fraction: float = 0.8,
         share[j] = (inside & (d <= gate)).sum(axis=0) / np.maximum(span, 1.0)
     ok = share >= min_fraction
     matched = np.zeros(len(tg), bool)
+    right = np.zeros(n, bool)
     if n and len(tg):
         r, c = linear_sum_assignment(np.where(ok, -share, 1.0))
         matched[r[ok[r, c]]] = True
-    n_right = int(matched.sum())
+        right[c[ok[r, c]]] = True
     return {"targets": tg, "pt": matched.astype(float),
             "pt_overall": float(matched.mean()) if len(tg) else float("nan"),
-            "n_tracks": n, "n_false": n - n_right}
+            "n_tracks": n, "n_false": n - int(right.sum()),
+            "false_ids": sorted(int(i) for i in tracks["track_id"][~right])}
 
 
 def _summary(targets, pt, pc, n_tracks, n_false, speed_error) -> dict:
@@ -327,7 +330,8 @@ def evaluate_image_tracks(results, truth, *, sigma: float | None = None,
     dict
         ``pt target N`` (1 when target N is initiated), ``pt_overall``, ``pc``,
         ``n_tracks``, ``n_false``, ``speed_error_median`` / ``_max`` (relative) by the
-        line rule; ``pt_path``, ``n_false_path`` by the path rule.
+        line rule; ``pt_path``, ``n_false_path`` and ``false_path_tracks`` (the false
+        tracks' ids, to look up in ``/tracks``) by the path rule.
     """
     if sigma is None:
         sigma = float(results.config.get("initiate", {}).get("sigma", 1.5))
@@ -336,7 +340,8 @@ def evaluate_image_tracks(results, truth, *, sigma: float | None = None,
     path = score_track_paths(results["tracks"], truth, gate=2 * gate, camera=camera)
     return {**_summary(s["targets"], s["pt"], s["pc"], s["n_tracks"], s["n_false"],
                        s["speed_error"]),
-            "pt_path": path["pt_overall"], "n_false_path": path["n_false"]}
+            "pt_path": path["pt_overall"], "n_false_path": path["n_false"],
+            "false_path_tracks": path["false_ids"]}
 
 
 def scan_tracks_of(results, *, warn: bool = True):
