@@ -284,13 +284,17 @@ def shown_windows(n_frames: int, starts, length: int) -> np.ndarray:
     -1 where none does. Overlapping windows (``combine.step`` < ``length``, the tail
     window over the last frames) would otherwise draw one target's detection once per
     window, in two colours."""
-    t = np.arange(n_frames)[:, None]
-    s = np.asarray(starts, float)[None, :]
-    holds = (t >= s) & (t < s + length)
-    if not holds.shape[1]:
+    starts = np.asarray(starts, float)             # ascending (``window_starts``)
+    t = np.arange(n_frames)
+    if not len(starts):
         return np.full(n_frames, -1)
-    dist = np.where(holds, np.abs(t - (s + (length - 1) / 2.0)), np.inf)
-    return np.where(holds.any(axis=1), dist.argmin(axis=1), -1)
+    first = np.searchsorted(starts, t - length + 1, "left")   # the windows holding t:
+    last = np.searchsorted(starts, t, "right") - 1            # first .. last
+    middle = starts + (length - 1) / 2.0
+    after = np.searchsorted(middle, t, "left")                # the first middle >= t
+    lo, hi = np.clip(after - 1, first, last), np.clip(after, first, last)
+    pick = np.where(np.abs(t - middle[lo]) <= np.abs(t - middle[hi]), lo, hi)
+    return np.where(last >= first, pick, -1)
 
 
 def draw_overlay(image: np.ndarray, t: int, overlay: Overlay, style: Style = Style(), *,
