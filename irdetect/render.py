@@ -672,10 +672,8 @@ def write_video(source, results, output, *, fps: float | None = None,
     config = results.config
     overlay = Overlay.from_tables(results.tables, truth, run_exclusions(config, (H, W)))
     style = Style(scale=float(scale), trail=int(trail), candidates=candidates)
-    length = int(results.attrs.get("combined_length", 12))
-    starts = window_starts(T, length=length,
-                           step=int(results.attrs.get("combined_step", length)),
-                           tail=bool(config.get("combine", {}).get("tail", False)))
+    length, step, tail = results.windows()
+    starts = window_starts(T, length=length, step=step, tail=tail)
     overlay.shown = shown_windows(T, starts, length)
     sup_params = dict(config.get("suppress", {}))
     comb_params = {k: v for k, v in config.get("combine", {}).items()

@@ -119,9 +119,7 @@ def evaluate(results_path, truth_path=None, *, gate: float = 3.0,
         return {"track initiation (scans)": evaluate_scan_results(results, truth_path)}
     truth, seq_shape = _load_truth(results, results_path, truth_path)
     attrs = results.attrs
-    cfg = results.config.get("combine", {})
-    length = int(attrs.get("combined_length", cfg.get("length", 12)))
-    step = int(attrs.get("combined_step", cfg.get("step", length)))
+    length, step, tail = results.windows()
     if "frame_height" in attrs:
         shape = (int(attrs["frame_height"]), int(attrs["frame_width"]))
         n_frames = int(attrs["n_frames"])
@@ -130,9 +128,7 @@ def evaluate(results_path, truth_path=None, *, gate: float = 3.0,
     else:
         raise InputError("results file does not say the frame size (attrs frame_height, "
                          "frame_width, n_frames) and --truth is not a sequence", results_path)
-    # results written before the tail window (``combine.tail``) have none
-    ctx = {"n_frames": n_frames, "length": length, "step": step,
-           "tail": bool(cfg.get("tail", False)), "shape": shape,
+    ctx = {"n_frames": n_frames, "length": length, "step": step, "tail": tail, "shape": shape,
            "gate": float(gate), "frame_rate": attrs.get("frame_rate")}
     out = {}
     for title, table, function in SECTIONS:

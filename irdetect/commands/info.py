@@ -80,9 +80,7 @@ def _describe_results(path) -> list[str]:
     if "combined_length" in res.attrs:
         line = f"  combined frames of {res.attrs['combined_length']} frames"
         if {"combined_step", "n_frames"} <= set(res.attrs):
-            line += _windows(int(res.attrs["n_frames"]), int(res.attrs["combined_length"]),
-                             int(res.attrs["combined_step"]),
-                             bool(res.config.get("combine", {}).get("tail", False)))
+            line += _windows(int(res.attrs["n_frames"]), *res.windows())
         if res.attrs.get("short_sequence"):
             line += (f" (a short sequence of {res.attrs.get('n_frames', '?')} frames: "
                      f"{res.attrs.get('configured_length', '?')} configured)")

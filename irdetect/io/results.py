@@ -204,6 +204,17 @@ class Results:
             raise InputError("attribute config is not a JSON object", self.path)
         return config
 
+    def windows(self) -> tuple[int, int, bool]:
+        """(length, step, tail) of the run's combined frames: the attributes
+        ``combined_length`` / ``combined_step`` (what the run used, a short sequence's
+        shorter windows too), else the configuration's ``combine`` table, else 12 frames
+        every 12; ``tail`` the configuration's ``combine.tail`` (results written before the
+        tail window have none: False)."""
+        combine = self.config.get("combine", {})
+        length = int(self.attrs.get("combined_length", combine.get("length", 12)))
+        step = int(self.attrs.get("combined_step", combine.get("step", length)))
+        return length, step, bool(combine.get("tail", False))
+
 
 def read_results(path: str | os.PathLike, *, as_frame: bool | None = False) -> Results:
     """Read every table and root attribute of a results file.
