@@ -28,6 +28,15 @@ def _frames(kind: str) -> np.ndarray:
     return frames.astype(np.float64 if kind == "huge" else np.float32)
 
 
+#: what the one line says of each (which frames, how many pixels, the first one)
+EXPECTED = {
+    "nan": "frame 20 holds NaN or inf values (1 px in frames 0..",
+    "nan-frame": "frame 0 holds NaN or inf values (the whole frame;",
+    "inf": "frame 3 holds NaN or inf values (2 px in frames 0..",
+    "huge": "float32's range",
+}
+
+
 @pytest.mark.parametrize("kind", ["nan", "nan-frame", "inf", "huge"])
 def test_bad_values_give_one_line_with_warnings_shown(tmp_path, kind):
     with h5py.File(tmp_path / "bad.h5", "w") as f:
@@ -41,9 +50,8 @@ def test_bad_values_give_one_line_with_warnings_shown(tmp_path, kind):
                              env=env, capture_output=True, text=True, timeout=120)
         lines = run.stderr.strip().splitlines()
         assert run.returncode == 2 and len(lines) == 1, (command, run.stderr)
-        assert lines[0].startswith(f"irdetect {command[0]}: error: bad.h5: frames "), lines
-        expected = "float32's range" if kind == "huge" else "hold NaN or inf values"
-        assert expected in lines[0]
+        assert lines[0].startswith(f"irdetect {command[0]}: error: bad.h5: frame"), lines
+        assert EXPECTED[kind] in lines[0], lines[0]
         assert not any(p.name not in ("bad.h5",) for p in tmp_path.iterdir()), command
 
 
@@ -143,3 +151,18 @@ def test_every_bad_value_names_its_option(files, monkeypatch, capsys, command, e
     assert code == 2 and err == f"irdetect {argv[0]}: error: {err.split(': error: ', 1)[1]}"
     assert len(err.splitlines()) == 1 and expected in err, err
     assert set(files.iterdir()) == before
+
+
+def test_nonfinite_message_names_the_frames_and_the_first_pixel():
+    from irdetect.errors import InputError
+    from irdetect.io.sources import check_values
+
+    frames = np.ones((12, 16, 20), np.float32)
+    frames[2:9, 10, 11] = np.inf         # x 11, y 10 in frames 2..8
+    frames[5, 0, 0] = np.nan
+    with pytest.raises(InputError) as err:
+        check_values(frames, 30, "seq.h5")
+    assert str(err.value).endswith(
+        "frames 32, 33, 34 and 4 more hold NaN or inf values (8 px in frames 30..41, the "
+        "first at x 11, y 10 of frame 32; irdetect needs finite pixel values)")
+    check_values(np.ones((3, 4, 4), np.float32), 0, "seq.h5")      # finite: no error

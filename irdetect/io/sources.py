@@ -144,7 +144,8 @@ def check_values(frames: np.ndarray, start: int, path, *, limit: float | None = 
     Raises
     ------
     InputError
-        "frames A..B hold NaN or inf values", or values beyond the limit.
+        "frame A holds NaN or inf values (...)" (which frames, how many pixels, the first
+        one), or values beyond the limit.
     """
     if frames.dtype.kind != "f" or frames.size == 0:
         return
@@ -156,12 +157,35 @@ def check_values(frames: np.ndarray, start: int, path, *, limit: float | None = 
         if ok:
             return
         where = f"frames {start}..{start + len(frames) - 1}"
-        if not np.isfinite(frames).all():
-            raise InputError(f"{where} hold NaN or inf values", path)
+        bad = ~np.isfinite(frames)
+        if bad.any():
+            raise InputError(_nonfinite_message(bad, start), path)
     if limit is None:           # finite float64 values whose sum overflowed
         return
     raise InputError(f"{where} hold values beyond +-{limit:.3g} (float32's range, in which "
                      "irdetect computes)", path)
+
+
+def _nonfinite_message(bad: np.ndarray, start: int) -> str:
+    """Where the NaN or inf pixels ``bad`` (n, H, W) of frames ``start ..`` lie: the
+    frames (the first three named), the pixel count and the first pixel (x = column,
+    y = row)."""
+    counts = bad.reshape(len(bad), -1).sum(axis=1)
+    idx = np.flatnonzero(counts)
+    first = start + int(idx[0])
+    y, x = np.argwhere(bad[idx[0]])[0]
+    names = ", ".join(str(start + int(i)) for i in idx[:3])
+    if len(idx) > 3:
+        names += f" and {len(idx) - 3} more"
+    if len(idx) == 1 and counts[idx[0]] == bad[0].size:
+        where = "the whole frame"
+    else:
+        at = f"at x {int(x)}, y {int(y)}" if counts.sum() == 1 else (
+            f"the first at x {int(x)}, y {int(y)} of frame {first}")
+        where = f"{int(counts.sum())} px in frames {start}..{start + len(bad) - 1}, {at}"
+    verb = "frame" if len(idx) == 1 else "frames"
+    return (f"{verb} {names} {'holds' if len(idx) == 1 else 'hold'} NaN or inf values "
+            f"({where}; irdetect needs finite pixel values)")
 
 
 def _check_stack(path, shape, dtype) -> None:
