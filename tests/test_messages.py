@@ -153,6 +153,26 @@ def test_every_bad_value_names_its_option(files, monkeypatch, capsys, command, e
     assert set(files.iterdir()) == before
 
 
+@pytest.mark.parametrize("command", ["evaluate seq.h5", "plot seq.h5 -o p.png",
+                                     "export seq.h5 --format csv -o out",
+                                     "video seq.h5 seq.h5 -o v.mp4", "evaluate seq.npy"])
+def test_a_sequence_given_for_results_says_to_process_it_first(files, tmp_path, monkeypatch,
+                                                               capsys, command):
+    from irdetect.cli import main
+
+    (tmp_path / "seq.h5").symlink_to(files / "seq.h5")
+    np.save(tmp_path / "seq.npy", np.zeros((12, 8, 8), np.float32))
+    monkeypatch.chdir(tmp_path)
+    before = set(tmp_path.iterdir())
+    assert main(command.split()) == 2
+    err = capsys.readouterr().err
+    what = "a sequence (it holds /frames)" if ".h5" in command else "a sequence"
+    assert err == (f"irdetect {command.split()[0]}: error: {command.split()[1]}: {what}, not "
+                   "a results file: run `irdetect process` (or `track`) on it and give the "
+                   "results file it writes\n")
+    assert set(tmp_path.iterdir()) == before
+
+
 def test_nonfinite_message_names_the_frames_and_the_first_pixel():
     from irdetect.errors import InputError
     from irdetect.io.sources import check_values

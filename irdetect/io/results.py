@@ -21,6 +21,10 @@ from irdetect import __version__, tables
 from irdetect.errors import InputError, check_input_file
 from irdetect.io.atomic import (GuardedFile, atomic_output, check_output_path,
                                 deferred_signals, leave, received)
+from irdetect.io.sources import IMAGE_SUFFIXES, MAT_SUFFIXES, VIDEO_SUFFIXES
+
+#: suffixes of sequences that are not HDF5 (``irdetect.io.open_sequence``)
+SEQUENCE_SUFFIXES = IMAGE_SUFFIXES | VIDEO_SUFFIXES | MAT_SUFFIXES | {".npy"}
 
 
 class AtomicH5:
@@ -249,6 +253,10 @@ def read_results(path: str | os.PathLike, *, as_frame: bool | None = False) -> R
     return results
 
 
+#: what to do with a sequence given where a results file belongs
+RUN_FIRST = "run `irdetect process` (or `track`) on it and give the results file it writes"
+
+
 def _read_results(path) -> Results:
     check_input_file(path, "results file")
     try:
@@ -258,9 +266,15 @@ def _read_results(path) -> Results:
                 if isinstance(obj, h5py.Dataset) and obj.dtype.names is not None:
                     found[name] = obj[()]
             attrs = {k: _plain(v) for k, v in f.attrs.items()}
+            sequence = isinstance(f.get("frames"), h5py.Dataset) and not set(found) - {"truth"}
     except OSError as exc:
+        if Path(path).suffix.lower() in SEQUENCE_SUFFIXES:
+            raise InputError(f"a sequence, not a results file: {RUN_FIRST}", path) from None
         raise InputError(f"not a readable HDF5 file ({str(exc).splitlines()[0][:120]})",
                          path) from None
+    if sequence:
+        raise InputError(f"a sequence (it holds /frames), not a results file: {RUN_FIRST}",
+                         path)
     results = Results(os.fspath(path), found, attrs)
     results.config          # a config attribute that is not JSON fails here, not later
     return results
