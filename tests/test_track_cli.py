@@ -56,6 +56,24 @@ def test_user_errors_exit_2_without_partial_output(tmp_path, capsys):
     assert not out.exists()
 
 
+def test_psf_option_sets_the_matched_filter_over_the_config(tmp_path, capsys):
+    seq = tmp_path / "s.h5"
+    write_sequence(seq, np.random.default_rng(0).normal(100, 5, (24, 32, 32)).astype(np.float32))
+    conf = tmp_path / "c.toml"
+    conf.write_text("[track]\npsf = 0.8\n")
+    out = tmp_path / "t.h5"
+    assert main(["track", str(seq), "-o", str(out), "--config", str(conf), "-q"]) == 0
+    assert json.loads(read_results(out).attrs["config"])["track"]["psf"] == 0.8
+    assert main(["track", str(seq), "-o", str(out), "--config", str(conf), "--psf", "0.6",
+                 "-q", "--force"]) == 0
+    assert json.loads(read_results(out).attrs["config"])["track"]["psf"] == 0.6
+    capsys.readouterr()
+    assert main(["track", str(seq), "-o", str(tmp_path / "u.h5"), "--psf", "-1"]) == 2
+    assert capsys.readouterr().err == ("irdetect track: error: --psf -1: the PSF's sigma "
+                                       "must be >= 0 px\n")
+    assert not (tmp_path / "u.h5").exists()
+
+
 def test_evaluate_scores_track_points(harbour_file, tmp_path, capsys):
     path, _ = harbour_file
     out = tmp_path / "t.h5"

@@ -28,7 +28,7 @@ from irdetect.commands import (DATASET_HELP, SEQUENCE_KINDS, add_input_options,
                                with_input_options)
 from irdetect.config import to_json
 from irdetect.profiles import load_profile
-from irdetect.errors import refused_settings
+from irdetect.errors import InputError, refused_settings
 from irdetect.io import ResultsWriter, check_output_path, open_sequence
 
 log = logging.getLogger(__name__)
@@ -47,6 +47,11 @@ def add_arguments(p):
                    "grey and area gates of its harbour scene)")
     p.add_argument("--method", choices=["fcm-pmht", "gnn"],
                    help="FCM + adaptive PMHT (default) or the CV Kalman + GNN baseline")
+    p.add_argument("--psf", type=float, metavar="PX",
+                   help="the sensor's point spread: sigma (px) of the Gaussian matched "
+                   "filter of the default profile's regions (default 1; a sensor whose "
+                   "point targets fill about one pixel, 0.6; 0: none; the [track] psf "
+                   "setting, docs/tracking.md)")
     p.add_argument("--sea-sky", action="store_true", default=None,
                    help="maritime scene: search only near the sea-sky line")
     p.add_argument("--dataset", help=DATASET_HELP)
@@ -58,8 +63,10 @@ def run(args) -> int:
     from irdetect import tables
     from irdetect.track import track
 
-    overrides = {k: v for k, v in (("method", args.method), ("sea_sky", args.sea_sky))
-                 if v is not None}
+    overrides = {k: v for k, v in (("method", args.method), ("sea_sky", args.sea_sky),
+                                   ("psf", args.psf)) if v is not None}
+    if args.psf is not None and args.psf < 0:
+        raise InputError(f"--psf {args.psf:g}: the PSF's sigma must be >= 0 px")
     config = with_input_options(load_profile(args.profile, args.config), args)
     config = dataclasses.replace(config, track=dataclasses.replace(config.track, **overrides))
     path = Path(args.input)
