@@ -121,6 +121,7 @@ def test_no_track_says_what_a_frame_by_frame_tracker_needs(tmp_path, caplog):
     said = " ".join(r.getMessage() for r in caplog.records)
     assert "0 tracks" in said and "no track: a frame-by-frame tracker" in said
     assert "irdetect process integrates 12 frames" in said and "--polarity dark" in said
+    assert "--psf 0.6" in said
 
 
 def test_paper_profile_keeps_the_papers_gates(tmp_path):

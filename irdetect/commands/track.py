@@ -88,14 +88,17 @@ def run(args) -> int:
                                 lambda rows: out.append("camera", rows), **params,
                                 exclude=config.exclude)
         out.write("tracks", summary)
-    log.info("wrote %s: %d frames, %d tracks", output, len(source), len(summary))
+    log.info("wrote %s: %d frames, %d track%s", output, len(source), len(summary),
+             "" if len(summary) == 1 else "s")
     if not len(summary) and config.track.regions == "detector":
         from irdetect.peaks import frame_level
 
         log.info("no track: a frame-by-frame tracker follows targets that reach the "
                  "per-frame level (%.1f local sigmas here) in most frames; for dimmer ones "
-                 "irdetect process integrates 12 frames%s",
+                 "irdetect process integrates 12 frames%s%s",
                  frame_level(source.shape[1:], config.track.false_rate),
+                 "; targets that fill about one pixel reach it more often with --psf 0.6"
+                 if config.track.psf > 0.6 else "",
                  "; targets darker than their background (a recording saved black-hot) "
                  "take --polarity dark" if config.suppress.polarity == "bright" else "")
     return 0
