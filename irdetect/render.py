@@ -492,9 +492,11 @@ def run_exclusions(config: dict, shape) -> np.ndarray | None:
         return None
 
 
-def legend_items(overlay: Overlay, style: Style, *, truth: bool) -> list[tuple[str, tuple]]:
-    """(label, BGR colour) of the layers that have something to draw."""
-    items = [("detections (colour = window)", WINDOW_PALETTE[0])]
+def legend_items(overlay: Overlay, style: Style, *, truth: bool,
+                 detections: bool = True) -> list[tuple[str, tuple]]:
+    """(label, BGR colour) of the layers that have something to draw (``detections``:
+    results are drawn, their detections first)."""
+    items = [("detections (colour = window)", WINDOW_PALETTE[0])] if detections else []
     if len(overlay.tracks):
         items.append(("track: estimated path, id", COLOURS["track"]))
     if len(overlay.track_points):
@@ -603,9 +605,11 @@ def write_video(source, results, output, *, fps: float | None = None,
     ----------
     source : irdetect.io.FrameSource
         The sequence (frames of shape (H, W)); read one window at a time.
-    results : irdetect.io.Results
+    results : irdetect.io.Results or None
         ``read_results`` of the results file; checked against the sequence first
-        (``check_results_match``) so a mismatch fails before any frame is written.
+        (``check_results_match``) so a mismatch fails before any frame is written. None:
+        the sequence alone (with ``truth``, its annotation), the panels with the default
+        configuration.
     output : str or os.PathLike
         ``.mp4``, ``.avi`` or a folder for PNG frames (``irdetect.io.video``).
     fps : float, optional
@@ -666,13 +670,19 @@ def write_video(source, results, output, *, fps: float | None = None,
     except ValueError as exc:
         raise InputError(f"--percentiles {low:g} {high:g}: {exc}") from None
     check_gamma(gamma)
-    inputs = (results.path, source.path)
+    inputs = (source.path,) if results is None else (results.path, source.path)
     check_video_path(output, force, inputs)
-    check_results_match(results, source.shape, sequence_name=Path(source.path).name)
-    config = results.config
-    overlay = Overlay.from_tables(results.tables, truth, run_exclusions(config, (H, W)))
+    if results is None:
+        from irdetect.config import CombineConfig
+
+        found, config = {}, {}
+        length, step, tail = CombineConfig.length, CombineConfig.step, CombineConfig.tail
+    else:
+        check_results_match(results, source.shape, sequence_name=Path(source.path).name)
+        found, config = results.tables, results.config
+        length, step, tail = results.windows()
+    overlay = Overlay.from_tables(found, truth, run_exclusions(config, (H, W)))
     style = Style(scale=float(scale), trail=int(trail), candidates=candidates)
-    length, step, tail = results.windows()
     starts = window_starts(T, length=length, step=step, tail=tail)
     overlay.shown = shown_windows(T, starts, length)
     sup_params = dict(config.get("suppress", {}))
@@ -682,7 +692,8 @@ def write_video(source, results, output, *, fps: float | None = None,
     # display limits of the raw frames: a sample of frames spread over the sequence
     pick = np.unique(np.linspace(0, T - 1, min(T, 16)).round().astype(int))
     limits = display_limits(np.stack([source[int(i)] for i in pick]), low=low, high=high)
-    items = legend_items(overlay, style, truth=truth is not None) if legend else []
+    items = legend_items(overlay, style, truth=truth is not None,
+                         detections=results is not None) if legend else []
     wanted = range(0, T, int(every))
     bar = tqdm(total=len(wanted), unit="frame", desc="video", disable=not progress,
                leave=False)
@@ -728,10 +739,13 @@ def write_video(source, results, output, *, fps: float | None = None,
                     picture = pictures[0]
                 if legend:
                     k = int(overlay.shown[t])
-                    if items:   # the detection swatch takes the colour of this window
+                    if results is None:
+                        window = "no results"
+                    else:
+                        # the detection swatch takes the colour of this window
                         items[0] = (items[0][0], window_colour(max(k, 0)))
-                    window = (f"window {k}: frames {starts[k]}-{starts[k] + length - 1}"
-                              if k >= 0 else "in no window")
+                        window = (f"window {k}: frames {starts[k]}-{starts[k] + length - 1}"
+                                  if k >= 0 else "in no window")
                     picture = np.vstack([picture, status_strip(
                         picture.shape[1], t, T, counts, window=window, legend=items,
                         font_scale=max(0.4, style.font_scale))])

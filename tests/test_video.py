@@ -301,6 +301,30 @@ def test_cli_video_and_its_bad_input(scene, cli, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.mp4"]
 
 
+def test_the_sequence_alone_with_its_truth_before_any_run(scene, cli, tmp_path):
+    """Without a results file: every frame, the truth in green at its place, nothing
+    else drawn, and the same size as with results."""
+    code, _, err = cli("video", scene["seq"], "-o", "alone", "--truth", "--scale", "2")
+    assert code == 0, err
+    names, images = _read_png_folder(tmp_path / "alone")
+    assert len(images) == T
+    with open_sequence(scene["seq"]) as src:
+        truth = src.truth
+
+    def has(img, bgr, tol=40):
+        return np.abs(img.astype(int) - np.array(bgr)).max(axis=2) < tol
+
+    for t in (0, T // 2, T - 1):
+        green = has(images[t][:H * 2], COLOURS["truth"])     # above the status strip
+        rows = truth[truth["frame"] == t]
+        near = _near(green.shape, np.column_stack([rows["x"], rows["y"]]) * 2 + 0.5, 12)
+        assert green.sum() > 4 and not (green & ~near).any(), t
+        assert not has(images[t], COLOURS["track"]).any()
+    code, _, err = cli("video", scene["seq"], scene["res"], "-o", "with", "--scale", "2")
+    assert code == 0, err
+    assert _read_png_folder(tmp_path / "with")[1][0].shape == images[0].shape
+
+
 @pytest.mark.skipif(hasattr(os, "geteuid") and os.geteuid() == 0,
                     reason="root can write into read-only folders")
 def test_unwritable_folder_is_refused(scene, tmp_path):

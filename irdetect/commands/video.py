@@ -4,8 +4,9 @@ Every frame is contrast-stretched for display (robust percentiles, 8/16-bit and 
 aware, optional gamma) and overlaid with the confirmed detections (circles coloured by
 window), optionally the unconfirmed candidates, the initiated tracks (estimated path, a
 trail and the id, only over the frames each track spans), frame-by-frame tracker output
-when present, and ground truth with --truth. Output by extension: .mp4 (mp4v), .avi
-(MJPG), or a folder name without a suffix for PNG frames. See docs/video.md.
+when present, and ground truth with --truth; without a results file, the sequence alone.
+Output by extension: .mp4 (mp4v), .avi (MJPG), or a folder name without a suffix for PNG
+frames. See docs/video.md.
 """
 
 from __future__ import annotations
@@ -19,7 +20,10 @@ from irdetect.errors import InputError
 def add_arguments(p, *, standalone: bool = True):
     if standalone:
         p.add_argument("input", help=f"sequence: {SEQUENCE_KINDS}")
-        p.add_argument("results", help="results file of irdetect process (or track)")
+        p.add_argument("results", nargs="?",
+                       help="results file of irdetect process (or track); without it, the "
+                       "sequence alone (with --truth, its ground truth: a look at the data "
+                       "before a run)")
         p.add_argument("-o", "--output", required=True,
                        help="out.mp4, out.avi, or a folder name (no suffix) for PNG frames")
         p.add_argument("--dataset", help=DATASET_HELP)
@@ -88,9 +92,11 @@ def run(args) -> int:
     from irdetect.io.video import check_video_path
 
     check_video_path(args.output, args.force)
-    if not Path(args.results).exists():
-        raise InputError("results file not found", args.results)
-    results = read_results(args.results)
+    results = None
+    if args.results is not None:
+        if not Path(args.results).exists():
+            raise InputError("results file not found", args.results)
+        results = read_results(args.results)
     with open_sequence(args.input, args.dataset) as src:
         render(src, results, args.output, args, force=args.force)
     return 0
