@@ -26,7 +26,7 @@ from __future__ import annotations
 import inspect
 import logging
 import os
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import cv2
@@ -673,10 +673,10 @@ def write_video(source, results, output, *, fps: float | None = None,
     inputs = (source.path,) if results is None else (results.path, source.path)
     check_video_path(output, force, inputs)
     if results is None:
-        from irdetect.config import CombineConfig
+        from irdetect.config import ProcessConfig
 
-        found, config = {}, {}
-        length, step, tail = CombineConfig.length, CombineConfig.step, CombineConfig.tail
+        found, config = {}, asdict(ProcessConfig())
+        length, step, tail = (config["combine"][k] for k in ("length", "step", "tail"))
     else:
         check_results_match(results, source.shape, sequence_name=Path(source.path).name)
         found, config = results.tables, results.config
