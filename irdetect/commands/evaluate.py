@@ -169,10 +169,13 @@ LEGEND = {
     "roc_auc": "roc_auc = area under pd vs false/frame (0-0.1) over snr thresholds / 0.1",
     "false": "false = detections near no target",
     "pixel_fa": "pixel_fa = false-alarm pixels / all pixels (3x3 px per false detection)",
-    "pt_overall": "pt = targets with a track / targets",
-    "pc": "pc = false tracks / tracks",
+    "pt_overall": "pt = targets with a track / targets, by the paper's line rule (every "
+                  "true position within 3 x initiate.sigma, 4.5 px by default, of the "
+                  "track's line: a target that turns fails it)",
+    "pc": "pc = false tracks / tracks (line rule)",
     "speed_error_median": "speed_error = |track - true velocity| / true speed",
-    "pt_path": "pt_path = pt, a track within 2 x gate of its target in 80 % of its frames",
+    "pt_path": "pt_path = pt by the path rule: a track within 2 x gate of its target in "
+               "80 % of its frames (what the benchmarks score)",
     "false_path_tracks": "false_path_tracks = track_id of the tracks false by that rule",
     "mota": "mota = 1 - (misses + false + switches) / true positions",
     "motp": "motp = mean distance of the matches (px)",
