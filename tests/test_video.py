@@ -186,23 +186,24 @@ def test_png_frames_match_the_video_frame_by_frame(scene, tmp_path):
         assert diffs[t] < 8.0
 
 
+def _has(img, bgr, tol=40):
+    """Mask of the pixels of colour ``bgr`` (within ``tol`` per channel)."""
+    return np.abs(img.astype(int) - np.array(bgr)).max(axis=2) < tol
+
+
 def test_tracks_only_over_the_frames_they_span_and_truth_in_green(scene, tmp_path):
     out = tmp_path / "frames"
     with open_sequence(scene["seq"]) as src:
         write_video(src, read_results(scene["res"]), out, scale=SCALE, legend=False,
                     truth=src.truth)
     _, images = _read_png_folder(out)
-
-    def has(img, bgr, tol=40):
-        return (np.abs(img.astype(int) - np.array(bgr)).max(axis=2) < tol).sum()
-
     for t, img in enumerate(images):
-        orange = has(img, COLOURS["track"])
+        orange = _has(img, COLOURS["track"]).sum()
         if t < L:
             assert orange == 0, f"track drawn at frame {t}, before it starts"
         else:
             assert orange > 20, f"track missing at frame {t}"
-        assert has(img, COLOURS["truth"]) > 4
+        assert _has(img, COLOURS["truth"]).sum() > 4
 
 
 def test_track_points_are_drawn_when_present(scene, tmp_path):
@@ -306,20 +307,16 @@ def test_the_sequence_alone_with_its_truth_before_any_run(scene, cli, tmp_path):
     else drawn, and the same size as with results."""
     code, _, err = cli("video", scene["seq"], "-o", "alone", "--truth", "--scale", "2")
     assert code == 0, err
-    names, images = _read_png_folder(tmp_path / "alone")
+    _, images = _read_png_folder(tmp_path / "alone")
     assert len(images) == T
     with open_sequence(scene["seq"]) as src:
         truth = src.truth
-
-    def has(img, bgr, tol=40):
-        return np.abs(img.astype(int) - np.array(bgr)).max(axis=2) < tol
-
     for t in (0, T // 2, T - 1):
-        green = has(images[t][:H * 2], COLOURS["truth"])     # above the status strip
+        green = _has(images[t][:H * 2], COLOURS["truth"])     # above the status strip
         rows = truth[truth["frame"] == t]
         near = _near(green.shape, np.column_stack([rows["x"], rows["y"]]) * 2 + 0.5, 12)
         assert green.sum() > 4 and not (green & ~near).any(), t
-        assert not has(images[t], COLOURS["track"]).any()
+        assert not _has(images[t], COLOURS["track"]).any()
     code, _, err = cli("video", scene["seq"], scene["res"], "-o", "with", "--scale", "2")
     assert code == 0, err
     assert _read_png_folder(tmp_path / "with")[1][0].shape == images[0].shape

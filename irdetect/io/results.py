@@ -21,10 +21,7 @@ from irdetect import __version__, tables
 from irdetect.errors import InputError, check_input_file
 from irdetect.io.atomic import (GuardedFile, atomic_output, check_output_path,
                                 deferred_signals, leave, received)
-from irdetect.io.sources import IMAGE_SUFFIXES, MAT_SUFFIXES, VIDEO_SUFFIXES
-
-#: suffixes of sequences that are not HDF5 (``irdetect.io.open_sequence``)
-SEQUENCE_SUFFIXES = IMAGE_SUFFIXES | VIDEO_SUFFIXES | MAT_SUFFIXES | {".npy"}
+from irdetect.io.sources import OTHER_SEQUENCE_SUFFIXES
 
 
 class AtomicH5:
@@ -268,7 +265,7 @@ def _read_results(path) -> Results:
             attrs = {k: _plain(v) for k, v in f.attrs.items()}
             sequence = isinstance(f.get("frames"), h5py.Dataset) and not set(found) - {"truth"}
     except OSError as exc:
-        if Path(path).suffix.lower() in SEQUENCE_SUFFIXES:
+        if Path(path).suffix.lower() in OTHER_SEQUENCE_SUFFIXES:
             raise InputError(f"a sequence, not a results file: {RUN_FIRST}", path) from None
         raise InputError(f"not a readable HDF5 file ({str(exc).splitlines()[0][:120]})",
                          path) from None

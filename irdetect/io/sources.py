@@ -29,6 +29,8 @@ VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".mpg", ".mpeg", ".wmv", ".m4v
 HDF5_SUFFIXES = {".h5", ".hdf5", ".hdf", ".he5"}
 TIFF_SUFFIXES = {".tif", ".tiff"}
 MAT_SUFFIXES = {".mat"}
+#: sequence files that are not HDF5 (a single image is none: ``open_sequence``)
+OTHER_SEQUENCE_SUFFIXES = TIFF_SUFFIXES | VIDEO_SUFFIXES | MAT_SUFFIXES | {".npy"}
 #: the text a MATLAB MAT-file of version 7.3 (an HDF5 file) starts with
 MATLAB_HDF5 = b"MATLAB 7.3 MAT-file"
 #: MATLAB classes of numeric arrays (the ``MATLAB_class`` attribute of a v7.3 variable)
