@@ -136,6 +136,8 @@ def test_too_few_frames_says_how_many(tmp_path):
     with pytest.raises(InputError, match="needs at least 12"):
         process_file(seq, tmp_path / "out.h5")
     assert not (tmp_path / "out.h5").exists()
+    with pytest.raises(ValueError, match="has 1 frame; detection"):
+        detect_sequence(frames[:1])
 
 
 @pytest.mark.parametrize("n_frames, length", [(36, 12), (35, 11), (30, 10), (20, 6), (12, 4)])

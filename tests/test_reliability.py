@@ -414,6 +414,8 @@ def test_tiny_frames_refused(work, run):
     write_sequence(work / "tiny.h5", np.random.default_rng(0).normal(100, 2, (60, 2, 2))
                    .astype(np.float32))
     run("process", "tiny.h5", "-o", "o.h5", want=(2,), names="too small")
+    run("track", "tiny.h5", "-o", "o.h5", want=(2,), names="too small")
+    assert not (work / "o.h5").exists()
 
 
 # --- unclear messages -------------------------------------------------------------------------

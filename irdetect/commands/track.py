@@ -61,6 +61,7 @@ def add_arguments(p):
 
 def run(args) -> int:
     from irdetect import tables
+    from irdetect.pipeline import check_size
     from irdetect.track import track
 
     overrides = {k: v for k, v in (("method", args.method), ("sea_sky", args.sea_sky),
@@ -76,18 +77,19 @@ def run(args) -> int:
     with refused_settings(args.config):     # the tracker's own checks, on blank frames
         track(np.zeros((3, 32, 32), np.float32), lambda rows: None, False,
               dataclasses.asdict(config.suppress), **params)
-    with open_sequence(args.input, dataset=args.dataset) as source, \
-            ResultsWriter(output, force=args.force, inputs=(args.input,), attrs={
+    with open_sequence(args.input, dataset=args.dataset) as source:
+        check_size(source.shape, args.input)
+        with ResultsWriter(output, force=args.force, inputs=(args.input,), attrs={
                 "config": to_json(config), "input": path.name,
                 "input_path": str(path.resolve()), "n_frames": source.shape[0],
                 "frame_height": source.shape[1], "frame_width": source.shape[2],
                 "frame_rate": source.frame_rate or float("nan")}) as out:
-        out.append("track_points", tables.empty(tables.TRACK_POINT))
-        points, summary = track(source, lambda rows: out.append("track_points", rows),
-                                args.progress, dataclasses.asdict(config.suppress),
-                                lambda rows: out.append("camera", rows), **params,
-                                exclude=config.exclude)
-        out.write("tracks", summary)
+            out.append("track_points", tables.empty(tables.TRACK_POINT))
+            points, summary = track(source, lambda rows: out.append("track_points", rows),
+                                    args.progress, dataclasses.asdict(config.suppress),
+                                    lambda rows: out.append("camera", rows), **params,
+                                    exclude=config.exclude)
+            out.write("tracks", summary)
     log.info("wrote %s: %d frames, %d track%s", output, len(source), len(summary),
              "" if len(summary) == 1 else "s")
     if not len(summary) and config.track.regions == "detector":

@@ -38,9 +38,9 @@ from irdetect.pipeline.timing import Ready, lap
 from irdetect.suppress import STILL_PX, future_frames, past_frames
 from irdetect.verify import quantisation_floor
 
-__all__ = ["CHUNK_TABLES", "N_CORRELATE", "check_config", "check_frames", "detect_sequence",
-           "finish", "fit_config", "initiate_tracks", "iter_results", "min_frames",
-           "process_file"]
+__all__ = ["CHUNK_TABLES", "N_CORRELATE", "check_config", "check_frames", "check_size",
+           "detect_sequence", "finish", "fit_config", "initiate_tracks", "iter_results",
+           "min_frames", "process_file"]
 
 #: the names tests and scripts used before ``irdetect.pipeline`` became a package
 _Reader = Reader
@@ -105,7 +105,8 @@ def fit_config(config: ProcessConfig | None, n_frames: int) -> ProcessConfig:
                 config, combine=dataclasses.replace(c, length=length, step=step))
     need = frames_needed(N_CORRELATE, length=min(MIN_LENGTH, c.length),
                          step=max(1, round(c.step * min(MIN_LENGTH, c.length) / c.length)))
-    raise ValueError(f"the sequence has {n_frames} frames; detection needs at least {need} "
+    raise ValueError(f"the sequence has {n_frames} frame{'' if n_frames == 1 else 's'}; "
+                     f"detection needs at least {need} "
                      f"(3 combined frames of at least {min(MIN_LENGTH, c.length)} frames)")
 
 
@@ -391,6 +392,15 @@ def check_config(config: ProcessConfig, path=None, frame_shape=(32, 32)) -> None
         initiate_detections(corners, **asdict(config.initiate))
 
 
+def check_size(shape, path=None) -> None:
+    """Refuse frames smaller than ``MIN_SIDE`` px a side, (T, H, W) ``shape``: no room for
+    a target and its background (``process`` and ``track``)."""
+    _, h, w = shape
+    if min(h, w) < MIN_SIDE:
+        raise InputError(f"frames of {w}x{h} px are too small: a target and its "
+                         f"background need at least {MIN_SIDE}x{MIN_SIDE} px", path)
+
+
 def check_frames(shape, config: ProcessConfig, path=None) -> None:
     """Refuse frames a run cannot use before it starts: frames smaller than ``MIN_SIDE``
     px a side (no room for a target and its background), or a window of frames larger
@@ -402,10 +412,8 @@ def check_frames(shape, config: ProcessConfig, path=None) -> None:
     shape : tuple of int
         (T, H, W) of the sequence.
     """
+    check_size(shape, path)
     _, h, w = shape
-    if min(h, w) < MIN_SIDE:
-        raise InputError(f"frames of {w}x{h} px are too small: a target and its "
-                         f"background need at least {MIN_SIDE}x{MIN_SIDE} px", path)
     need = WINDOW_BYTES_PER_PIXEL * config.combine.length * h * w
     available = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
     if need > available:
