@@ -13,7 +13,7 @@ from __future__ import annotations
 import os
 
 # OpenCV's and FFmpeg's own log lines stay off stderr unless -v (read when cv2 loads)
-os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
+os.environ.setdefault("OPENCV_LOG_LEVEL", "SILENT")
 os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
 
 import argparse  # noqa: E402

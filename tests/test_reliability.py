@@ -432,6 +432,19 @@ def test_library_log_lines_stay_off_stderr(work):
     assert code == 2 and len(err.strip().splitlines()) == 1, err
 
 
+def test_damaged_image_in_a_folder_is_one_line(work):
+    import cv2
+    (work / "pngs").mkdir()
+    for i in range(40):
+        cv2.imwrite(str(work / "pngs" / f"{i:03d}.png"), np.full((32, 32), i, np.uint8))
+    (work / "pngs" / "010.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"junk" * 10)
+    code, err = finish(child("process", "pngs", "-o", "o.h5", cwd=work))
+    # OpenCV's decoder logs its own line ("IHDR chunk shall be first") unless -v
+    assert code == 2 and err.strip().splitlines() == [
+        "irdetect process: error: pngs/010.png: cannot read this image"], err
+    assert not (work / "o.h5").exists()
+
+
 def test_argparse_errors_are_one_line(work):
     code, err = finish(child("process", "seq.h5", "--bogus", cwd=work))
     assert code == 2 and len(err.strip().splitlines()) == 1 and "--bogus" in err, err
