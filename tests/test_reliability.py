@@ -432,6 +432,15 @@ def test_library_log_lines_stay_off_stderr(work):
     assert code == 2 and len(err.strip().splitlines()) == 1, err
 
 
+def test_a_missing_frame_number_is_named(work):
+    import cv2
+    (work / "pngs").mkdir()
+    for i in [*range(20), *range(21, 40)]:
+        cv2.imwrite(str(work / "pngs" / f"f{i:03d}.png"), np.full((32, 32), i, np.uint8))
+    code, err = finish(child("info", "pngs", cwd=work))
+    assert code == 0 and "frame numbers skip at f019.png -> f021.png (1 place)" in err, err
+
+
 def test_damaged_image_in_a_folder_is_one_line(work):
     import cv2
     (work / "pngs").mkdir()

@@ -24,6 +24,8 @@ import numpy as np
 from irdetect import tables
 from irdetect.errors import InputError, check_input_file
 
+log = logging.getLogger(__name__)
+
 IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg", ".pgm"}
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".mpg", ".mpeg", ".wmv", ".m4v"}
 HDF5_SUFFIXES = {".h5", ".hdf5", ".hdf", ".he5"}
@@ -414,6 +416,18 @@ def _images_in(folder: Path) -> list[Path]:
                   key=lambda p: natural_key(p.name))
 
 
+def numbering_gaps(files) -> list[tuple[str, str]]:
+    """The places where the frame numbers of image names skip: (name before, name after)
+    pairs, in order. Names are numbered when all share one text around their last number
+    (``frame_0019.png``); otherwise, or with fewer than two names, there is none."""
+    parts = [re.fullmatch(r"(.*?)(\d+)(\D*)", Path(f).name) for f in files]
+    if len(parts) < 2 or not all(parts) or len({(m[1], m[3]) for m in parts}) > 1:
+        return []
+    numbers = [int(m[2]) for m in parts]
+    return [(Path(a).name, Path(b).name) for a, b, i, j
+            in zip(files, files[1:], numbers, numbers[1:]) if j != i + 1]
+
+
 def folder_images(folder: str | os.PathLike) -> list[Path]:
     """The frames of an image-folder sequence, in natural order (empty if it is none).
 
@@ -448,6 +462,15 @@ class ImageFolderSource(FrameSource):
             raise InputError("the folder holds no images (PNG, TIFF, BMP, JPEG, PGM)", path)
         first = self._load(self._files[0])
         _check_stack(self.path, (len(self._files),) + first.shape, first.dtype)
+        gaps = numbering_gaps(self._files)
+        if gaps:
+            # the images are taken as consecutive frames: a missing one doubles a
+            # target's step there, which the trackers' motion models do not expect
+            log.warning("%s: the frame numbers skip at %s (%d place%s); the images are "
+                        "taken as consecutive frames", self.path,
+                        ", ".join(f"{a} -> {b}" for a, b in gaps[:3])
+                        + (", ..." if len(gaps) > 3 else ""),
+                        len(gaps), "" if len(gaps) == 1 else "s")
         self.shape = (len(self._files),) + first.shape
         self.dtype = first.dtype
 
