@@ -25,7 +25,8 @@ Scoring (gate 3 px for DAUB, 5 px for the others, as their READMEs say):
                matched the true path, and one false detection counts once in every frame
                of its window; frames after the last full window count as missed.
   tracks       right when, over its frames, it lies within 2 x gate of the truth in at
-               least 80 % of them (a scene track's positions follow the camera); false
+               least 80 % of them (a scene track's positions follow the camera) and no
+               other track does with a larger share (one track per target); false
                otherwise.
 
 Dataset: Hui Bingwei, Song Zhiyong, Fan Hongqi, et al., "A dataset for infrared image
@@ -79,6 +80,7 @@ from irdetect.config import ProcessConfig, load_config
 from irdetect.initiate import track_positions
 from irdetect.io import open_sequence, read_point_annotations
 from irdetect.metrics.detection import roc, score_detections
+from irdetect.metrics.initiation import assign_paths
 from irdetect.pipeline import detect_sequence, fit_config
 from irdetect.suppress import noise_sigma
 
@@ -88,7 +90,8 @@ TOPHAT_K = (3, 4, 5, 6, 8, 10, 13, 16, 20, 25, 30, 40, 50, 70, 100)
 TRACKPY_QUANTILES = (0.9, 0.97, 0.975, 0.98, 0.985, 0.99, 0.995, 0.998, 0.999, 0.9995, 0.9998, 0.9999)
 MIN_TRACK = 12
 #: the path rule: a track is right when it lies within 2 gates of the truth in this share
-#: of its frames (issue 16: 80 %; 50 % before)
+#: of its frames (issue 16: 80 %; 50 % before) and no other track does with a larger share
+#: (one track per target, as ``irdetect evaluate``'s ``pt_path``)
 PATH_SHARE = 0.8
 #: section 3: (label, {stage: {field: value}}) applied on top of the configuration run
 VARIANTS = (
@@ -417,17 +420,24 @@ def score_frames(points: np.ndarray, truth: np.ndarray, n_frames: int, gate: flo
 
 
 def score_tracks(tracks: list[np.ndarray], truth: np.ndarray, gate: float) -> tuple[int, int]:
-    """tracks: list of (n, 3) arrays (frame, x, y). (right, false)."""
-    right = false = 0
-    for tr in tracks:
+    """tracks: list of (n, 3) arrays (frame, x, y); truth: the target's row per frame.
+    (right, false) by the path rule (``path_shares``, one track per target)."""
+    right = assign_paths(path_shares(tracks, truth, gate)[None], PATH_SHARE)[1]
+    return int(right.sum()), len(tracks) - int(right.sum())
+
+
+def path_shares(tracks: list[np.ndarray], truth: np.ndarray, gate: float) -> np.ndarray:
+    """(n,): the share of each track's points (frame, x, y) within 2 gates of the target
+    (those of frames the truth covers); the path rule
+    (``irdetect.metrics.initiation.assign_paths``) takes the largest of those >= PATH_SHARE
+    as the target's track and calls the others false."""
+    out = np.zeros(len(tracks))
+    for i, tr in enumerate(tracks):
         f = tr[:, 0].astype(int)
         ok = (f >= 0) & (f < len(truth))
         d = np.hypot(tr[ok, 1] - truth["x"][f[ok]], tr[ok, 2] - truth["y"][f[ok]])
-        if len(d) and (d <= 2 * gate).mean() >= PATH_SHARE:
-            right += 1
-        else:
-            false += 1
-    return right, false
+        out[i] = (d <= 2 * gate).mean() if len(d) else 0.0
+    return out
 
 
 # --- irdetect --------------------------------------------------------------------------

@@ -2,7 +2,8 @@
 
 For every folder of ../shared/data/real (frames/ and truth.txt), ``irdetect process``'s
 default configuration; every track the path rule calls false (it lies within 2 x gate of
-the target in fewer than 80 % of its frames, bench_real's rule) gets one row: its
+the target in fewer than 80 % of its frames, or another track follows the target with a
+larger share: bench_real's rule, one track per target) gets one row: its
 coordinates (scene: image minus the camera's offsets, or image), frames, speed, the
 confirmed detections on it (within 3 px of its position at their window's middle frame),
 their local SNR (``snr``), their distance from the target's true position, the share of
@@ -13,7 +14,7 @@ its 1st and 99.9th percentiles; a white mark where the truth puts the target whe
 in the crop) is written beside the table: the evidence the rows' numbers summarise.
 
 The same for ``irdetect track`` (the frame-by-frame tracker, defaults): on every folder
-each track whose points lie within 2 x gate of the target in fewer than 80 % of them, and
+each track the same rule calls false (by its points' distance from the target), and
 on the clutter-only crops of bench_tracking (each folder's largest strip clear of the
 target's path: every track there is false unless the strip holds an object the truth does
 not name), with its points' speed (a line fitted to them, in the image), local SNR (their
@@ -39,12 +40,13 @@ sys.path.insert(0, str(ROOT))
 
 from irdetect.initiate import track_positions  # noqa: E402
 from irdetect.io import open_sequence, read_point_annotations  # noqa: E402
+from irdetect.metrics.initiation import assign_paths  # noqa: E402
 from irdetect.pipeline import detect_sequence  # noqa: E402
 from irdetect.track import track  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "scripts"))
 # scripts/: bench_real's gate and path rule, bench_tracking's gate and clutter-only strip
-from bench_real import PATH_SHARE, gate_of  # noqa: E402
+from bench_real import PATH_SHARE, gate_of, path_shares  # noqa: E402
 from bench_tracking import _crop, _gate  # noqa: E402
 
 REAL = ROOT.parent / "shared" / "data" / "real"
@@ -55,17 +57,18 @@ SCALE = 2
 
 
 def false_tracks(out: dict, truth: np.ndarray, gate: float) -> list[dict]:
-    """One dict per track of ``detect_sequence``'s output that the path rule calls false."""
+    """One dict per track of ``detect_sequence``'s output that the path rule calls false
+    (``bench_real.score_tracks``: off the target, or a second track on it)."""
     det, cam = out["detections"], out["camera"]
     mid = 0.5 * (det["frame_start"] + det["frame_end"])
-    rows = []
+    paths = []
     for tr in out["tracks"]:
         frames = np.arange(tr["frame_start"], tr["frame_end"] + 1)
-        pos = track_positions(tr.reshape(1), frames, cam)[0]
-        near = np.hypot(pos[:, 0] - truth["x"][frames], pos[:, 1] - truth["y"][frames])
-        share = float((near <= 2 * gate).mean())
-        if share >= PATH_SHARE:
-            continue
+        paths.append(np.column_stack([frames, track_positions(tr.reshape(1), frames, cam)[0]]))
+    shares = path_shares(paths, truth, gate)
+    right = assign_paths(shares[None], PATH_SHARE)[1]
+    rows = []
+    for tr, share in zip(out["tracks"][~right], shares[~right]):
         at = track_positions(tr.reshape(1), mid, cam)[0]
         on = np.hypot(det["x"] - at[:, 0], det["y"] - at[:, 1]) <= ON_TRACK_PX
         d, t = det[on], np.rint(mid[on]).astype(int)
@@ -73,7 +76,7 @@ def false_tracks(out: dict, truth: np.ndarray, gate: float) -> list[dict]:
         rows.append({"track": int(tr["track_id"]), "scene": bool(tr["scene"]),
                      "frames": (int(tr["frame_start"]), int(tr["frame_end"])),
                      "speed": float(np.hypot(tr["vx"], tr["vy"])), "detections": d,
-                     "mid": t, "share": share,
+                     "mid": t, "share": float(share),
                      "from_target": np.hypot(d["x"] - truth["x"][t], d["y"] - truth["y"][t]),
                      "rms": float(np.sqrt(np.mean(off ** 2))) if len(off) else float("nan")})
     return rows
@@ -108,24 +111,31 @@ def crop_strip(frames: np.ndarray, truth: np.ndarray, x, y, t) -> np.ndarray:
 def tracker_false_tracks(points: np.ndarray, truth: np.ndarray, gate: float,
                          offset=(0, 0)) -> list[dict]:
     """One dict per track of ``irdetect track``'s points (``tables.TRACK_POINT``, image
-    px of frames cut at ``offset`` = (x0, y0)) with fewer than PATH_SHARE of its points
-    within 2 x gate of the target."""
-    rows = []
-    for tid in np.unique(points["track_id"]):
+    px of frames cut at ``offset`` = (x0, y0)) that the path rule calls false (fewer
+    than PATH_SHARE of its points within 2 x gate of the target, or a second track on
+    it)."""
+    ids = np.unique(points["track_id"])
+    paths = []
+    for tid in ids:
         p = points[points["track_id"] == tid]
         p = p[np.argsort(p["frame"])]
-        f, x, y = p["frame"], p["x"] + offset[0], p["y"] + offset[1]
+        paths.append(np.column_stack([p["frame"], p["x"] + offset[0], p["y"] + offset[1]]))
+    shares = path_shares(paths, truth, gate)
+    right = assign_paths(shares[None], PATH_SHARE)[1]
+    rows = []
+    for i in np.flatnonzero(~right):
+        tid, share = ids[i], shares[i]
+        p = points[points["track_id"] == tid]
+        p = p[np.argsort(p["frame"])]
+        f, x, y = p["frame"], paths[i][:, 1], paths[i][:, 2]
         far = np.hypot(x - truth["x"][f], y - truth["y"][f])
-        share = float((far <= 2 * gate).mean())
-        if share >= PATH_SHARE:
-            continue
         a = np.column_stack([f, np.ones(len(f))])
         fit = [np.linalg.lstsq(a, c, rcond=None)[0] for c in (x, y)] if len(f) > 1 else None
         rms = (float(np.sqrt(np.mean((a @ fit[0] - x) ** 2 + (a @ fit[1] - y) ** 2)))
                if fit else float("nan"))
         rows.append({"track": int(tid), "frames": (int(f[0]), int(f[-1])), "n": len(p),
                      "speed": float(np.hypot(fit[0][0], fit[1][0])) if fit else 0.0,
-                     "grey": p["grey"], "from_target": far, "share": share, "rms": rms,
+                     "grey": p["grey"], "from_target": far, "share": float(share), "rms": rms,
                      "x": x, "y": y, "t": f})
     return rows
 
@@ -216,8 +226,9 @@ def main(argv=None) -> int:
         "## `irdetect process`",
         "",
         "A track is false when it lies within 2 x gate (bench_real's: 3 px DAUB, 5 px the "
-        f"others) of the target in fewer than {PATH_SHARE:.0%} of its frames (its path "
-        f"rule): {len(lines)} of {n_tracks} tracks over {len(folders)} folders.",
+        f"others) of the target in fewer than {PATH_SHARE:.0%} of its frames, or another "
+        "track follows the target with a larger share (its path rule, one track per "
+        f"target): {len(lines)} of {n_tracks} tracks over {len(folders)} folders.",
         "",
         "Columns: coordinates (scene: image minus the camera's offsets `/camera`; image), "
         "its frames, speed (px/frame, in its coordinates), the confirmed detections on it "
@@ -238,7 +249,8 @@ def main(argv=None) -> int:
         "## `irdetect track`",
         "",
         f"A track is false when fewer than {PATH_SHARE:.0%} of its points lie within 2 x gate "
-        f"(bench_tracking's: 5 px easy1 / easy3, 3 px the others) of the target: "
+        f"(bench_tracking's: 5 px easy1 / easy3, 3 px the others) of the target, or another "
+        "track's points follow it with a larger share: "
         f"{n_false['whole']} of {n_tracker} tracks on the {len(folders)} folders, and "
         f"{n_false['crop']} on their "
         f"clutter-only crops ({n_crop_frames} frames; bench_tracking's strips, where every "

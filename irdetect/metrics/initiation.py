@@ -237,6 +237,35 @@ def score_image_tracks(tracks, truth, *, sigma: float = 1.5, k: float = 3.0,
             "n_tracks": len(tracks), "n_false": n_false, "speed_error": np.array(err)}
 
 
+def assign_paths(share, min_fraction: float = 0.8) -> tuple[np.ndarray, np.ndarray]:
+    """The path rule's one-to-one assignment of tracks to targets.
+
+    Parameters
+    ----------
+    share : ndarray of shape (n_targets, n_tracks)
+        The share of each track's frames in which it lies within the gate of each target.
+    min_fraction : float
+        The share a track needs to follow a target (80 %, issue 16).
+
+    Returns
+    -------
+    matched : ndarray of bool, shape (n_targets,)
+        Targets a track follows.
+    right : ndarray of bool, shape (n_tracks,)
+        Tracks that follow a target no other track holds (the largest shares first,
+        Hungarian); the others are false, a second track on a followed target too.
+    """
+    share = np.asarray(share, float)
+    ok = share >= min_fraction
+    matched = np.zeros(share.shape[0], bool)
+    right = np.zeros(share.shape[1], bool)
+    if share.size:
+        r, c = linear_sum_assignment(np.where(ok, -share, 1.0))
+        matched[r[ok[r, c]]] = True
+        right[c[ok[r, c]]] = True
+    return matched, right
+
+
 def score_track_paths(tracks, truth, *, gate: float, min_fraction: float = 0.8,
                       camera=None) -> dict:
     """Score ``tables.TRACK`` rows of an image sequence by their path in space and time.
@@ -285,13 +314,7 @@ def score_track_paths(tracks, truth, *, gate: float, min_fraction: float = 0.8,
         pos = track_positions(tracks, rows["frame"], camera)                  # (n, rows, 2)
         d = np.hypot(pos[..., 0].T - rows["x"][:, None], pos[..., 1].T - rows["y"][:, None])
         share[j] = (inside & (d <= gate)).sum(axis=0) / np.maximum(span, 1.0)
-    ok = share >= min_fraction
-    matched = np.zeros(len(tg), bool)
-    right = np.zeros(n, bool)
-    if n and len(tg):
-        r, c = linear_sum_assignment(np.where(ok, -share, 1.0))
-        matched[r[ok[r, c]]] = True
-        right[c[ok[r, c]]] = True
+    matched, right = assign_paths(share, min_fraction)
     return {"targets": tg, "pt": matched.astype(float),
             "pt_overall": float(matched.mean()) if len(tg) else float("nan"),
             "n_tracks": n, "n_false": n - int(right.sum()),
