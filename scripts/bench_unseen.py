@@ -771,7 +771,9 @@ def write_report(path: Path, scenes: list[dict], args, total: float) -> None:
         "frames' worth of frames (36 with the defaults), the ones that can be initiated: a "
         "track follows a target when it lies within 2 G of it in 80 % of its frames "
         "(`score_track_paths`, scene tracks following the camera). **Pc** = false tracks / "
-        "all tracks (a track following a target too short-lived for Pt is not false).",
+        "all tracks (a track following a target too short-lived for Pt is not false, nor "
+        "a second piece of a target's track broken in two; a second track beside it over "
+        "the same frames is).",
         "- **top-hat peak on a target**: frames whose brightest pixel of the white top-hat "
         "(9-px disc) lies within G of a target / frames with a target inside, the naive "
         "baseline. **ROC area**: the mean over the stratum's scenes with targets of the "

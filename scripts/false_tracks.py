@@ -2,8 +2,8 @@
 
 For every folder of ../shared/data/real (frames/ and truth.txt), ``irdetect process``'s
 default configuration; every track the path rule calls false (it lies within 2 x gate of
-the target in fewer than 80 % of its frames, or another track follows the target with a
-larger share: bench_real's rule, one track per target) gets one row: its
+the target in fewer than 80 % of its frames, or another track follows the target over the
+same frames with a larger share: bench_real's rule) gets one row: its
 coordinates (scene: image minus the camera's offsets, or image), frames, speed, the
 confirmed detections on it (within 3 px of its position at their window's middle frame),
 their local SNR (``snr``), their distance from the target's true position, the share of
@@ -46,7 +46,7 @@ from irdetect.track import track  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "scripts"))
 # scripts/: bench_real's gate and path rule, bench_tracking's gate and clutter-only strip
-from bench_real import PATH_SHARE, gate_of, path_shares  # noqa: E402
+from bench_real import PATH_SHARE, gate_of, path_shares, spans  # noqa: E402
 from bench_tracking import _crop, _gate  # noqa: E402
 
 REAL = ROOT.parent / "shared" / "data" / "real"
@@ -58,7 +58,7 @@ SCALE = 2
 
 def false_tracks(out: dict, truth: np.ndarray, gate: float) -> list[dict]:
     """One dict per track of ``detect_sequence``'s output that the path rule calls false
-    (``bench_real.score_tracks``: off the target, or a second track on it)."""
+    (``bench_real.score_tracks``: off the target, or a second track on it at once)."""
     det, cam = out["detections"], out["camera"]
     mid = 0.5 * (det["frame_start"] + det["frame_end"])
     paths = []
@@ -66,7 +66,7 @@ def false_tracks(out: dict, truth: np.ndarray, gate: float) -> list[dict]:
         frames = np.arange(tr["frame_start"], tr["frame_end"] + 1)
         paths.append(np.column_stack([frames, track_positions(tr.reshape(1), frames, cam)[0]]))
     shares = path_shares(paths, truth, gate)
-    right = assign_paths(shares[None], PATH_SHARE)[1]
+    right = assign_paths(shares[None], spans(paths), PATH_SHARE)[1]
     rows = []
     for tr, share in zip(out["tracks"][~right], shares[~right]):
         at = track_positions(tr.reshape(1), mid, cam)[0]
@@ -113,7 +113,7 @@ def tracker_false_tracks(points: np.ndarray, truth: np.ndarray, gate: float,
     """One dict per track of ``irdetect track``'s points (``tables.TRACK_POINT``, image
     px of frames cut at ``offset`` = (x0, y0)) that the path rule calls false (fewer
     than PATH_SHARE of its points within 2 x gate of the target, or a second track on
-    it)."""
+    it at once)."""
     ids = np.unique(points["track_id"])
     paths = []
     for tid in ids:
@@ -121,7 +121,7 @@ def tracker_false_tracks(points: np.ndarray, truth: np.ndarray, gate: float,
         p = p[np.argsort(p["frame"])]
         paths.append(np.column_stack([p["frame"], p["x"] + offset[0], p["y"] + offset[1]]))
     shares = path_shares(paths, truth, gate)
-    right = assign_paths(shares[None], PATH_SHARE)[1]
+    right = assign_paths(shares[None], spans(paths), PATH_SHARE)[1]
     rows = []
     for i in np.flatnonzero(~right):
         tid, share = ids[i], shares[i]
@@ -227,8 +227,8 @@ def main(argv=None) -> int:
         "",
         "A track is false when it lies within 2 x gate (bench_real's: 3 px DAUB, 5 px the "
         f"others) of the target in fewer than {PATH_SHARE:.0%} of its frames, or another "
-        "track follows the target with a larger share (its path rule, one track per "
-        f"target): {len(lines)} of {n_tracks} tracks over {len(folders)} folders.",
+        "track follows the target over the same frames with a larger share (its path "
+        f"rule): {len(lines)} of {n_tracks} tracks over {len(folders)} folders.",
         "",
         "Columns: coordinates (scene: image minus the camera's offsets `/camera`; image), "
         "its frames, speed (px/frame, in its coordinates), the confirmed detections on it "
@@ -250,7 +250,7 @@ def main(argv=None) -> int:
         "",
         f"A track is false when fewer than {PATH_SHARE:.0%} of its points lie within 2 x gate "
         f"(bench_tracking's: 5 px easy1 / easy3, 3 px the others) of the target, or another "
-        "track's points follow it with a larger share: "
+        "track's points follow it over the same frames with a larger share: "
         f"{n_false['whole']} of {n_tracker} tracks on the {len(folders)} folders, and "
         f"{n_false['crop']} on their "
         f"clutter-only crops ({n_crop_frames} frames; bench_tracking's strips, where every "

@@ -64,6 +64,12 @@ def test_path_rule_holds_a_wiggling_target_and_rejects_a_track_out_of_time():
     assert path["pt_overall"] == 1.0 and path["n_false"] == 2      # the late one, the copy
     assert len(path["false_ids"]) == 2 and 11 in path["false_ids"]     # named by track_id
     assert score_track_paths(tracks[1:2], truth, gate=6.0)["pt_overall"] == 0.0
+    # the target's track broken in two (frames 0-49 and 50-99) is no false track; a
+    # second one beside it over the same frames is
+    halves = tracks[[0, 0]].copy()
+    halves["frame_end"][0], halves["frame_start"][1] = 49, 50
+    halves["x0"][1], halves["y0"][1] = 75.0, 90.0
+    assert score_track_paths(halves, truth, gate=6.0)["n_false"] == 0
     line = score_image_tracks(tracks, truth, sigma=1.5)       # the line rule: a 5.6 px
     assert line["pt_overall"] == 0.0                          # wiggle is beyond 3 x 1.5 px
 

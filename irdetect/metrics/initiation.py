@@ -237,13 +237,22 @@ def score_image_tracks(tracks, truth, *, sigma: float = 1.5, k: float = 3.0,
             "n_tracks": len(tracks), "n_false": n_false, "speed_error": np.array(err)}
 
 
-def assign_paths(share, min_fraction: float = 0.8) -> tuple[np.ndarray, np.ndarray]:
-    """The path rule's one-to-one assignment of tracks to targets.
+def assign_paths(share, spans, min_fraction: float = 0.8) -> tuple[np.ndarray, np.ndarray]:
+    """The path rule's assignment of tracks to targets.
+
+    Targets and the tracks that follow them are paired one to one (the largest shares
+    first, Hungarian). A further track that follows a target (share >= ``min_fraction``)
+    is right too when it overlaps that target's right tracks in time by less than half
+    its own or their span: the target's track broken in two (a fragment the
+    initiation or the tracker started again) follows it, a second track beside the
+    first duplicates it and is false.
 
     Parameters
     ----------
     share : ndarray of shape (n_targets, n_tracks)
         The share of each track's frames in which it lies within the gate of each target.
+    spans : ndarray of shape (n_tracks, 2)
+        Each track's first and last frame.
     min_fraction : float
         The share a track needs to follow a target (80 %, issue 16).
 
@@ -252,17 +261,40 @@ def assign_paths(share, min_fraction: float = 0.8) -> tuple[np.ndarray, np.ndarr
     matched : ndarray of bool, shape (n_targets,)
         Targets a track follows.
     right : ndarray of bool, shape (n_tracks,)
-        Tracks that follow a target no other track holds (the largest shares first,
-        Hungarian); the others are false, a second track on a followed target too.
+        Tracks that follow a target; the others (none followed, or a duplicate) are false.
+
+    Examples
+    --------
+    >>> share = np.array([[1.0, 0.9, 0.9, 0.1]])
+    >>> spans = np.array([[0, 49], [50, 99], [10, 40], [0, 99]])
+    >>> assign_paths(share, spans)[1].tolist()       # a fragment, a duplicate, clutter
+    [True, True, False, False]
     """
     share = np.asarray(share, float)
+    spans = np.asarray(spans, float).reshape(-1, 2)
     ok = share >= min_fraction
     matched = np.zeros(share.shape[0], bool)
     right = np.zeros(share.shape[1], bool)
-    if share.size:
-        r, c = linear_sum_assignment(np.where(ok, -share, 1.0))
-        matched[r[ok[r, c]]] = True
-        right[c[ok[r, c]]] = True
+    if not share.size:
+        return matched, right
+    r, c = linear_sum_assignment(np.where(ok, -share, 1.0))
+    keep = ok[r, c]
+    matched[r[keep]] = True
+    right[c[keep]] = True
+    owner = np.full(share.shape[1], -1)
+    owner[c[keep]] = r[keep]
+    length = spans[:, 1] - spans[:, 0] + 1
+    best = np.where(ok, share, -1.0).max(axis=0)
+    for k in np.argsort(-best, kind="stable"):         # the unpaired, largest share first
+        if right[k] or best[k] < 0:
+            continue
+        j = int(np.argmax(np.where(ok[:, k], share[:, k], -1.0)))
+        mine = np.flatnonzero(owner == j)
+        overlap = (np.minimum(spans[mine, 1], spans[k, 1])
+                   - np.maximum(spans[mine, 0], spans[k, 0]) + 1)
+        if np.all(overlap < 0.5 * np.minimum(length[mine], length[k])):
+            right[k] = matched[j] = True
+            owner[k] = j
     return matched, right
 
 
@@ -275,8 +307,9 @@ def score_track_paths(tracks, truth, *, gate: float, min_fraction: float = 0.8,
     camera's motion since frame_start for a ``scene`` track
     (``irdetect.initiate.track_positions``). It follows a target when it lies within
     ``gate`` px of the target's true position in at least ``min_fraction`` of its frames
-    (80 %, issue 16's path rule; 50 % before); tracks and targets are then assigned one-to-one (the
-    largest shares first, Hungarian). Unlike the line rule of ``score_image_tracks`` it
+    (80 %, issue 16's path rule; 50 % before); tracks and targets are then assigned
+    (``assign_paths``: one to one, the largest shares first, and beside that a fragment
+    of the target's track that does not overlap it in time). Unlike the line rule of ``score_image_tracks`` it
     checks where along its line the track is, and it holds a target that wiggles about
     a straight path (a real target under camera jitter), which the line rule's largest
     distance over every position rejects.
@@ -298,7 +331,8 @@ def score_track_paths(tracks, truth, *, gate: float, min_fraction: float = 0.8,
     -------
     dict
         ``targets``, ``pt`` (1 per followed target), ``pt_overall``, ``n_tracks``,
-        ``n_false`` (tracks that follow no target, or a target another track holds) and
+        ``n_false`` (tracks that follow no target, or a target another track follows over
+        the same frames) and
         ``false_ids`` (their ``track_id``, ascending).
     """
     tg = np.unique(truth["target"])
@@ -314,7 +348,8 @@ def score_track_paths(tracks, truth, *, gate: float, min_fraction: float = 0.8,
         pos = track_positions(tracks, rows["frame"], camera)                  # (n, rows, 2)
         d = np.hypot(pos[..., 0].T - rows["x"][:, None], pos[..., 1].T - rows["y"][:, None])
         share[j] = (inside & (d <= gate)).sum(axis=0) / np.maximum(span, 1.0)
-    matched, right = assign_paths(share, min_fraction)
+    matched, right = assign_paths(
+        share, np.column_stack([tracks["frame_start"], tracks["frame_end"]]), min_fraction)
     return {"targets": tg, "pt": matched.astype(float),
             "pt_overall": float(matched.mean()) if len(tg) else float("nan"),
             "n_tracks": n, "n_false": n - int(right.sum()),
