@@ -54,6 +54,11 @@ def test_user_errors_exit_2_without_partial_output(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "k must be > 0" in err and "bad.toml" in err and "Traceback" not in err
     assert not out.exists()
+    # two frames hold no track of three hits: said, not "no track: ... --psf 0.6"
+    assert main(["track", str(seq), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "s.h5: the sequence has 2 frames; a track is confirmed after 3 hits" in err
+    assert not out.exists()
 
 
 def test_psf_option_sets_the_matched_filter_over_the_config(tmp_path, capsys):

@@ -79,6 +79,11 @@ def run(args) -> int:
               dataclasses.asdict(config.suppress), **params)
     with open_sequence(args.input, dataset=args.dataset) as source:
         check_size(source.shape, args.input)
+        if len(source) < config.track.confirm_hits:
+            raise InputError(f"the sequence has {len(source)} frame"
+                             f"{'' if len(source) == 1 else 's'}; a track is confirmed after "
+                             f"{config.track.confirm_hits} hits (track.confirm_hits)",
+                             args.input)
         with ResultsWriter(output, force=args.force, inputs=(args.input,), attrs={
                 "config": to_json(config), "input": path.name,
                 "input_path": str(path.resolve()), "n_frames": source.shape[0],
@@ -90,8 +95,8 @@ def run(args) -> int:
                                     lambda rows: out.append("camera", rows), **params,
                                     exclude=config.exclude)
             out.write("tracks", summary)
-    log.info("wrote %s: %d frames, %d track%s", output, len(source), len(summary),
-             "" if len(summary) == 1 else "s")
+    log.info("wrote %s: %d frame%s, %d track%s", output, len(source),
+             "" if len(source) == 1 else "s", len(summary), "" if len(summary) == 1 else "s")
     if not len(summary) and config.track.regions == "detector":
         from irdetect.peaks import frame_level
 
