@@ -423,14 +423,17 @@ def score_tracks(tracks: list[np.ndarray], truth: np.ndarray, gate: float) -> tu
     """tracks: list of (n, 3) arrays (frame, x, y); truth: the target's row per frame.
     (right, false) by the path rule (``path_shares``; a second track over the same frames
     of the target is false, ``irdetect.metrics.initiation.assign_paths``)."""
-    right = assign_paths(path_shares(tracks, truth, gate)[None], spans(tracks), PATH_SHARE)[1]
-    return int(right.sum()), len(tracks) - int(right.sum())
+    right = int(path_rule(tracks, truth, gate)[1].sum())
+    return right, len(tracks) - right
 
 
-def spans(tracks: list[np.ndarray]) -> np.ndarray:
-    """(n, 2): the first and last frame of each track's points (frame, x, y)."""
-    return np.array([[tr[:, 0].min(), tr[:, 0].max()] if len(tr) else [0, -1]
-                     for tr in tracks], float).reshape(-1, 2)
+def path_rule(tracks: list[np.ndarray], truth: np.ndarray, gate: float):
+    """(share, right), each (n,): the share of each track's points (frame, x, y) within 2
+    gates of the target (``path_shares``) and whether the path rule calls it right."""
+    share = path_shares(tracks, truth, gate)
+    spans = np.array([[tr[:, 0].min(), tr[:, 0].max()] if len(tr) else [0, -1]
+                      for tr in tracks], float).reshape(-1, 2)
+    return share, assign_paths(share[None], spans, PATH_SHARE)[1]
 
 
 def path_shares(tracks: list[np.ndarray], truth: np.ndarray, gate: float) -> np.ndarray:

@@ -40,13 +40,12 @@ sys.path.insert(0, str(ROOT))
 
 from irdetect.initiate import track_positions  # noqa: E402
 from irdetect.io import open_sequence, read_point_annotations  # noqa: E402
-from irdetect.metrics.initiation import assign_paths  # noqa: E402
 from irdetect.pipeline import detect_sequence  # noqa: E402
 from irdetect.track import track  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "scripts"))
 # scripts/: bench_real's gate and path rule, bench_tracking's gate and clutter-only strip
-from bench_real import PATH_SHARE, gate_of, path_shares, spans  # noqa: E402
+from bench_real import PATH_SHARE, gate_of, path_rule  # noqa: E402
 from bench_tracking import _crop, _gate  # noqa: E402
 
 REAL = ROOT.parent / "shared" / "data" / "real"
@@ -65,8 +64,7 @@ def false_tracks(out: dict, truth: np.ndarray, gate: float) -> list[dict]:
     for tr in out["tracks"]:
         frames = np.arange(tr["frame_start"], tr["frame_end"] + 1)
         paths.append(np.column_stack([frames, track_positions(tr.reshape(1), frames, cam)[0]]))
-    shares = path_shares(paths, truth, gate)
-    right = assign_paths(shares[None], spans(paths), PATH_SHARE)[1]
+    shares, right = path_rule(paths, truth, gate)
     rows = []
     for tr, share in zip(out["tracks"][~right], shares[~right]):
         at = track_positions(tr.reshape(1), mid, cam)[0]
@@ -120,8 +118,7 @@ def tracker_false_tracks(points: np.ndarray, truth: np.ndarray, gate: float,
         p = points[points["track_id"] == tid]
         p = p[np.argsort(p["frame"])]
         paths.append(np.column_stack([p["frame"], p["x"] + offset[0], p["y"] + offset[1]]))
-    shares = path_shares(paths, truth, gate)
-    right = assign_paths(shares[None], spans(paths), PATH_SHARE)[1]
+    shares, right = path_rule(paths, truth, gate)
     rows = []
     for i in np.flatnonzero(~right):
         tid, share = ids[i], shares[i]

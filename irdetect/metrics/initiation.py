@@ -309,10 +309,10 @@ def score_track_paths(tracks, truth, *, gate: float, min_fraction: float = 0.8,
     ``gate`` px of the target's true position in at least ``min_fraction`` of its frames
     (80 %, issue 16's path rule; 50 % before); tracks and targets are then assigned
     (``assign_paths``: one to one, the largest shares first, and beside that a fragment
-    of the target's track that does not overlap it in time). Unlike the line rule of ``score_image_tracks`` it
-    checks where along its line the track is, and it holds a target that wiggles about
-    a straight path (a real target under camera jitter), which the line rule's largest
-    distance over every position rejects.
+    of the target's track that does not overlap it in time). Unlike the line rule of
+    ``score_image_tracks`` it checks where along its line the track is, and it holds a
+    target that wiggles about a straight path (a real target under camera jitter), which
+    the line rule's largest distance over every position rejects.
 
     Parameters
     ----------
