@@ -155,3 +155,18 @@ def test_a_real_recording_saved_black_hot():
     np.testing.assert_allclose(b["x"], a["x"], atol=1e-3)
     np.testing.assert_allclose(b["y"], a["y"], atol=1e-3)
     assert len(detect_sequence(black)["tracks"]) == 0
+
+
+@pytest.mark.parametrize("command", ["process", "track"])
+def test_a_run_on_constant_frames_says_so(tmp_path, caplog, command):
+    """A dataset of zeros (the wrong one of a file) finds nothing: the run says the frames
+    hold one value, not that the targets may be dark."""
+    import logging
+
+    seq = tmp_path / "zeros.h5"
+    write_sequence(seq, np.zeros((40, 64, 64), np.uint16))
+    with caplog.at_level(logging.INFO, logger="irdetect"):
+        assert main([command, str(seq), "-o", str(tmp_path / "out.h5")]) == 0
+    said = " ".join(r.getMessage() for r in caplog.records)
+    assert "frames 0, 20, 39 each hold a single value (0)" in said and "--dataset" in said
+    assert "--polarity dark" not in said

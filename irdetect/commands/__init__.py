@@ -54,3 +54,24 @@ def find_sequence(results, given=None):
         if (folder / name).exists():
             return folder / name
     return None
+
+
+def flat_frames(path, dataset=None) -> str | None:
+    """When the first, middle and last frames of the sequence at ``path`` each hold one
+    value (a dataset of zeros, a dead recording), what to say about it after a run that
+    found nothing; else None. Three frames are read, not the sequence."""
+    import numpy as np
+
+    from irdetect.io import open_sequence
+    from irdetect.io.sources import HDF5_SUFFIXES, MAT_SUFFIXES
+
+    with open_sequence(path, dataset=dataset) as src:
+        picks = sorted({0, len(src) // 2, len(src) - 1})
+        frames = [np.asarray(src[t:t + 1][0]) for t in picks]
+    if any(np.ptp(f) > 0 for f in frames):
+        return None
+    values = sorted({f.flat[0].item() for f in frames})
+    where = (" (another dataset of the file? --dataset names it)"
+             if Path(path).suffix.lower() in HDF5_SUFFIXES | MAT_SUFFIXES else "")
+    return (f"frames {', '.join(map(str, picks))} each hold a single value "
+            f"({', '.join(f'{v:g}' for v in values)}): nothing in them to detect{where}")

@@ -20,7 +20,7 @@ import os
 from pathlib import Path
 
 from irdetect.commands import (DATASET_HELP, SEQUENCE_KINDS, add_input_options,
-                               with_input_options)
+                               flat_frames, with_input_options)
 from irdetect.batch import SCHEDULER_ENV, expand_inputs, is_image_folder, output_name
 from irdetect.profiles import load_profile, profile_names
 from irdetect.commands.video import add_style_arguments as add_video_arguments
@@ -91,7 +91,10 @@ def run(args) -> int:
                            progress=args.progress, workers=args.threads or DEFAULT_THREADS)
     log.info("wrote %s: %d frames, %d detections, %d tracks in %.1f s", output,
              summary["frames"], summary["detections"], summary["tracks"], summary["seconds"])
-    if not summary["detections"] and config.suppress.polarity == "bright":
+    flat = flat_frames(args.input, args.dataset) if not summary["detections"] else None
+    if flat:
+        log.info("no detection: %s", flat)
+    elif not summary["detections"] and config.suppress.polarity == "bright":
         log.info("no detection: targets darker than their background (a recording saved "
                  "black-hot) are found with --polarity dark")
     if args.video:

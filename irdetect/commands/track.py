@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from irdetect.commands import (DATASET_HELP, SEQUENCE_KINDS, add_input_options,
-                               with_input_options)
+                               flat_frames, with_input_options)
 from irdetect.config import to_json
 from irdetect.profiles import load_profile
 from irdetect.errors import InputError, refused_settings
@@ -97,7 +97,10 @@ def run(args) -> int:
             out.write("tracks", summary)
     log.info("wrote %s: %d frame%s, %d track%s", output, len(source),
              "" if len(source) == 1 else "s", len(summary), "" if len(summary) == 1 else "s")
-    if not len(summary) and config.track.regions == "detector":
+    flat = flat_frames(args.input, args.dataset) if not len(summary) else None
+    if flat:
+        log.info("no track: %s", flat)
+    elif not len(summary) and config.track.regions == "detector":
         from irdetect.peaks import frame_level
 
         log.info("no track: a frame-by-frame tracker follows targets that reach the "
