@@ -75,10 +75,13 @@ class _Correlator:
     def spectrum(self, a: np.ndarray) -> np.ndarray:
         """Spectrum of a frame (h, w) after a 3x3 median (a hot pixel or any other
         single-pixel spike of the sensor is no structure to register on), mean removed,
-        Hanning window."""
+        scaled to at most 1, Hanning window."""
         a = _robust_range(cv2.medianBlur(np.ascontiguousarray(a, np.float32), 3))
-        a = (a - np.float32(a.mean(dtype=np.float64))) * self.window
-        return scipy.fft.rfft2(a)
+        a = a - np.float32(a.mean(dtype=np.float64))
+        # at most 1 in magnitude: the cross power's square (``shift``) stays within
+        # float32 whatever the frames' grey-level scale (values near 1e9 overflowed it)
+        a *= np.float32(1.0 / max(float(np.abs(a).max()), 1e-30))
+        return scipy.fft.rfft2(a * self.window)
 
     def shift(self, ref: np.ndarray, cur: np.ndarray) -> tuple[np.ndarray, float]:
         """(d, peak): frame ``cur`` ~ frame ``ref`` moved by d = (dx, dy) px; ``peak`` the

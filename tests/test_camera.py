@@ -58,6 +58,21 @@ def test_hot_pixels_do_not_pin_the_estimate_and_noise_gives_none():
     assert np.abs(estimate_motion(flat)).max() == 0.0
 
 
+def test_the_grey_level_scale_does_not_matter():
+    """Frames of spread 1e9 (a float export in physical units) register as the same frames
+    do in grey levels, without float32 overflow in the cross power (it overflowed, with
+    RuntimeWarnings, from a spread of about 2e7)."""
+    import warnings
+
+    frames = scene_frames(pan(24, (1.2, -0.7), 0.3))
+    est = estimate_motion(frames)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for scale in (1e-6, 1e8):
+            np.testing.assert_allclose(estimate_motion(frames * np.float32(scale)), est,
+                                       atol=1e-3)
+
+
 def test_streaming_in_pieces_equals_one_call():
     frames = scene_frames(pan(24, (1.2, -0.7), 0.3))
     whole = estimate_motion(frames)
