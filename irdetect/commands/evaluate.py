@@ -176,7 +176,9 @@ LEGEND = {
     "speed_error_median": "speed_error = |track - true velocity| / true speed",
     "pt_path": "pt_path = pt by the path rule: a track within 2 x gate of its target in "
                "80 % of its frames (what the benchmarks score)",
-    "false_path_tracks": "false_path_tracks = track_id of the tracks false by that rule",
+    "false_path_tracks": "false_path_tracks = track_id of the tracks false by that rule "
+                         "(following no target, or a second one on a target over the "
+                         "same frames)",
     "mota": "mota = 1 - (misses + false + switches) / true positions",
     "motp": "motp = mean distance of the matches (px)",
     "ospa_mean": "ospa = optimal subpattern assignment distance per window (m)",
