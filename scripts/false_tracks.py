@@ -113,17 +113,14 @@ def tracker_false_tracks(points: np.ndarray, truth: np.ndarray, gate: float,
     than PATH_SHARE of its points within 2 x gate of the target, or a second track on
     it at once)."""
     ids = np.unique(points["track_id"])
-    paths = []
-    for tid in ids:
-        p = points[points["track_id"] == tid]
-        p = p[np.argsort(p["frame"])]
-        paths.append(np.column_stack([p["frame"], p["x"] + offset[0], p["y"] + offset[1]]))
+    each = [points[points["track_id"] == tid] for tid in ids]
+    each = [p[np.argsort(p["frame"])] for p in each]
+    paths = [np.column_stack([p["frame"], p["x"] + offset[0], p["y"] + offset[1]])
+             for p in each]
     shares, right = path_rule(paths, truth, gate)
     rows = []
     for i in np.flatnonzero(~right):
-        tid, share = ids[i], shares[i]
-        p = points[points["track_id"] == tid]
-        p = p[np.argsort(p["frame"])]
+        tid, share, p = ids[i], shares[i], each[i]
         f, x, y = p["frame"], paths[i][:, 1], paths[i][:, 2]
         far = np.hypot(x - truth["x"][f], y - truth["y"][f])
         a = np.column_stack([f, np.ones(len(f))])

@@ -284,11 +284,12 @@ def assign_paths(share, spans, min_fraction: float = 0.8) -> tuple[np.ndarray, n
     owner = np.full(share.shape[1], -1)
     owner[c[keep]] = r[keep]
     length = spans[:, 1] - spans[:, 0] + 1
-    best = np.where(ok, share, -1.0).max(axis=0)
+    followed = np.where(ok, share, -1.0)               # (targets, tracks)
+    best, target = followed.max(axis=0), followed.argmax(axis=0)
     for k in np.argsort(-best, kind="stable"):         # the unpaired, largest share first
         if right[k] or best[k] < 0:
             continue
-        j = int(np.argmax(np.where(ok[:, k], share[:, k], -1.0)))
+        j = int(target[k])
         mine = np.flatnonzero(owner == j)
         overlap = (np.minimum(spans[mine, 1], spans[k, 1])
                    - np.maximum(spans[mine, 0], spans[k, 0]) + 1)
