@@ -114,10 +114,14 @@ BAD_OPTIONS = [
     ("simulate s.h5 --camera-jitter -1", "--camera-jitter -1: camera_jitter must be"),
     ("simulate s.h5 --camera-pan 1000 0", "--camera-pan 1000 0: targets at 1 px/frame and a "
      "camera pan of 1000 px/frame leave"),
+    ("simulate s.h5 --agc 0.15 0", "--agc 0.15 0: agc_period must be >= 1, got 0"),
+    ("simulate s.h5 --agc -2 20", "--agc -2 20: agc_step must be a number > -1"),
     ("simulate s.h5 --seed -1", "--seed must be an integer >= 0, got -1"),
     ("simulate s.h5 --scenario harbour --frames 0", "--frames 0: n_frames must be >= 1"),
     ("simulate s.h5 --scenario harbour --noise-sigma -1", "--noise-sigma -1: noise_sigma"),
     ("simulate s.h5 --scenario harbour --speed 3 4", "--speed 3 4 does not apply to the "
+     "harbour scene"),
+    ("simulate s.h5 --scenario harbour --agc 0.1 5", "--agc 0.1 5 does not apply to the "
      "harbour scene"),
     ("simulate-scans s.h5 --clutter-density -1", "--clutter-density -1: clutter_density "
      "must be a number >= 0"),

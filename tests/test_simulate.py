@@ -125,6 +125,22 @@ def test_paths_longer_than_the_frame_cross_it_whole_at_times_of_their_own():
 def test_camera_options_are_checked():
     with pytest.raises(InputError, match="camera_jitter"):
         load_scenario("wan2008", camera_jitter=-1.0)
+    with pytest.raises(InputError, match="agc_period"):
+        load_scenario("wan2008", agc_step=0.1, agc_period=0)
+    with pytest.raises(InputError, match="agc_step"):
+        load_scenario("wan2008", agc_step=-1.0)
+
+
+def test_the_gain_control_switches_every_period_about_the_background():
+    kw = dict(rng=4, n_frames=30, dtype="float32", cloud_amplitude=30.0)
+    fixed, truth = simulate("wan2008", **kw)
+    stepped, truth2 = simulate("wan2008", agc_step=0.2, agc_period=10, **kw)
+    np.testing.assert_array_equal(truth, truth2)
+    background = load_scenario("wan2008").background
+    for t in range(30):
+        gain = 1.2 if 10 <= t < 20 else 1.0
+        np.testing.assert_allclose(stepped[t], gain * (fixed[t] - background) + background,
+                                   atol=1e-3)
 
 
 def test_a_new_target_count_takes_the_presets_first_directions():

@@ -25,7 +25,8 @@ log = logging.getLogger(__name__)
 OPTIONS = {"snr": "--snr", "n_frames": "--frames", "width": "--size", "height": "--size",
            "n_targets": "--targets", "speed": "--speed", "noise_sigma": "--noise-sigma",
            "psf_sigma": "--psf-sigma", "camera_pan": "--camera-pan",
-           "camera_jitter": "--camera-jitter", "dtype": "--dtype"}
+           "camera_jitter": "--camera-jitter", "agc_step": "--agc", "agc_period": "--agc",
+           "dtype": "--dtype"}
 
 
 def given_options(args, options: dict[str, str]) -> dict[str, str]:
@@ -34,7 +35,8 @@ def given_options(args, options: dict[str, str]) -> dict[str, str]:
     ``size`` for width and height)."""
     out = {}
     for key, option in options.items():
-        value = getattr(args, "size" if option == "--size" else key, None)
+        value = getattr(args, option[2:].replace("-", "_") if option in ("--size", "--agc")
+                        else key, None)
         if value is not None:
             text = " ".join(f"{v:g}" if isinstance(v, float) else str(v)
                             for v in (value if isinstance(value, (list, tuple)) else [value]))
@@ -67,6 +69,9 @@ def add_arguments(p):
                    help="the camera pans: the scene moves VX, VY px/frame in the image")
     p.add_argument("--camera-jitter", type=float, metavar="PX",
                    help="the camera shakes: a random offset of up to PX px per frame and axis")
+    p.add_argument("--agc", type=float, nargs=2, metavar=("STEP", "PERIOD"),
+                   help="the camera's gain control: the gain switches between 1 and 1 + STEP "
+                   "every PERIOD frames (e.g. 0.15 20)")
     p.add_argument("--dtype", choices=["uint8", "uint16", "float32"])
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
 
@@ -79,6 +84,8 @@ def run(args) -> int:
         overrides["speed"] = list(args.speed)
     if args.camera_pan:
         overrides["camera_pan"] = list(args.camera_pan)
+    if args.agc:
+        overrides.update(agc_step=args.agc[0], agc_period=int(args.agc[1]))
     if args.size:
         w, _, h = args.size.lower().partition("x")
         if not (w.isdigit() and h.isdigit()):
@@ -92,7 +99,8 @@ def run(args) -> int:
     try:
         if kind == "harbour":
             wrong = [given[k] for k in ("snr", "n_targets", "dtype", "psf_sigma", "speed",
-                                        "camera_jitter", "camera_pan") if k in given]
+                                        "camera_jitter", "camera_pan", "agc_step")
+                     if k in given]
             if wrong:
                 raise InputError(f"{', '.join(wrong)} {'does' if len(wrong) == 1 else 'do'} "
                                  f"not apply to the harbour scene ({args.scenario})")

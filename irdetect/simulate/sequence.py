@@ -71,6 +71,11 @@ class SequenceScenario:
     # axis; the sensor's hot pixels stay put in the image
     camera_pan: tuple = (0.0, 0.0)
     camera_jitter: float = 0.0
+    # the camera's gain control: the gain switches between 1 and 1 + agc_step every
+    # agc_period frames (from frame agc_period on), about the background level, before
+    # the frames are rounded and clipped to the dtype (0: a fixed gain)
+    agc_step: float = 0.0
+    agc_period: int = 20
 
 
 
@@ -138,6 +143,12 @@ def _validate(s: SequenceScenario, path=None) -> None:
     if not (math.isfinite(s.camera_jitter) and s.camera_jitter >= 0):
         raise InputError(f"camera_jitter must be a number >= 0, got {s.camera_jitter}", path,
                          keys=("camera_jitter",))
+    if not (math.isfinite(s.agc_step) and s.agc_step > -1):
+        raise InputError(f"agc_step must be a number > -1, got {s.agc_step}", path,
+                         keys=("agc_step",))
+    if s.agc_period < 1:
+        raise InputError(f"agc_period must be >= 1, got {s.agc_period}", path,
+                         keys=("agc_period",))
     pan = math.hypot(*s.camera_pan)
     span = (max(s.speed) + pan) * (s.n_frames - 1)
     if s.n_targets and min(s.width, s.height) - 2 * s.margin <= 0:
@@ -304,6 +315,10 @@ def simulate_blocks(s: SequenceScenario, rng=None, *, block: int = 256):
                 rows = truth[truth["frame"] == t]
                 for x, y in zip(rows["x"], rows["y"]):
                     _add_psf(out[i], x, y, amp, s.psf_sigma, half)
+                if s.agc_step and (t // s.agc_period) % 2:
+                    out[i] -= s.background
+                    out[i] *= 1.0 + s.agc_step
+                    out[i] += s.background
             yield _to_dtype(out, s.dtype)
 
     return render(), truth
