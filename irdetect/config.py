@@ -48,6 +48,10 @@ class SuppressConfig:
     #: a still camera (``suppress(long_past=)``: a target that stops stays detected;
     #: 0: off, the default: docs/detection.md says what it costs the tracks)
     long_memory: int = 0
+    #: a frame whose gain departs by more than this fraction from the frame before it
+    #: is a step of the camera's gain control, and the frames after it are taken back
+    #: to frame 0's gain and level before suppression (``irdetect.gain``); 0: off
+    gain_step: float = 0.05
 
 
 @dataclass(frozen=True)

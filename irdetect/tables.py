@@ -83,7 +83,8 @@ TRACK = np.dtype([
 
 #: The camera's image motion, one row per frame: a scene point at (x, y) in frame 0 is at
 #: (x + dx, y + dy) in frame ``frame`` (px; ``irdetect.camera``).
-CAMERA = np.dtype([("frame", "<i8"), ("dx", "<f8"), ("dy", "<f8")])
+CAMERA = np.dtype([("frame", "<i8"), ("dx", "<f8"), ("dy", "<f8"), ("gain", "<f8"),
+                   ("level", "<f8")])
 
 #: Radar-style measurements, one row per measurement; range/azimuth NaN when not polar.
 SCAN = np.dtype([

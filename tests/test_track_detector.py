@@ -119,7 +119,7 @@ def test_still_camera_dragged_by_its_targets_keeps_the_scene_still():
     frames, truth = _wide_blobs(0)
     raw = estimate_motion(frames)
     assert np.abs(raw).max() > 3.0            # the scene's own estimate is dragged
-    scene = np.concatenate([off for _, _, off in detector_blocks(frames)])
+    scene = np.concatenate([off for _, _, off, _ in detector_blocks(frames)])
     assert scene.shape == (len(frames), 2) and np.abs(scene).max() < 1.0
     points, tracks = track(frames)
     r = clear_mot(truth, points, gate=5.2)

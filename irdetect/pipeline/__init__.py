@@ -179,7 +179,8 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
     ahead = [future_frames(start=int(s), stop=int(s) + cc.length, **params.suppress)
              for s in starts]
     reader = Reader(frames, past_frames(**params.suppress), cc.length, max(ahead),
-                     camera=config.suppress.method in ("auto", "registered"))
+                     camera=config.suppress.method in ("auto", "registered"),
+                     gain_step=params.gain_step)
     pool = ThreadPoolExecutor(int(workers)) if workers > 1 else None
     fronts: deque = deque()      # windows read and submitted, in order
     pending: deque = deque()
@@ -264,7 +265,8 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
         nonlocal camera_done
         f = np.arange(camera_done, max(end, camera_done))
         chunk["camera"] = tables.from_columns(tables.CAMERA, frame=f, dx=reader.offsets[f, 0],
-                                              dy=reader.offsets[f, 1])
+                                              dy=reader.offsets[f, 1], gain=reader.gains[f, 0],
+                                              level=reader.gains[f, 1])
         chunk["frame_detections"] = (tables.empty(tables.FRAME_DETECTION) if peaks is None
                                      else peaks[peaks["frame"] >= camera_done])
         camera_done = end
@@ -307,6 +309,8 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
             done = pending.popleft()
             yield with_camera(emit(done, tables.empty(tables.SEGMENT)),
                               done.start + cc.length, done.peaks)
+        if reader.agc is not None and reader.agc.summary():
+            log.info(reader.agc.summary())
     finally:
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)

@@ -1,5 +1,6 @@
 """The window reader: raw frames of one window and the history before it, streamed
-through one reused buffer, and the camera's offsets of every frame read (measured once).
+through one reused buffer, and the camera's offsets and gain of every frame read
+(measured once).
 """
 
 from __future__ import annotations
@@ -7,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from irdetect.camera import CameraMotion
+from irdetect.gain import STEP, SensorGain, normalise
 from irdetect.io.sources import FrameSource, check_values
 
 
@@ -16,14 +18,16 @@ class Reader:
     Frames go into one reused buffer of ``history + length + block`` frames, read ahead
     in blocks the storage favours (an HDF5 chunk: a compressed chunk read in pieces is
     decompressed once per piece), so memory is bounded whatever the sequence length.
-    The arrays returned are views of the buffer, valid until the next ``read``.
+    The arrays returned are views of the buffer, valid until the next ``read``; where the
+    camera's gain control stepped (``irdetect.gain``, ``gain_step`` > 0) they are float32
+    frames taken back to frame 0's gain and level instead.
     """
 
     #: largest read-ahead in bytes (a 64-frame chunk of 640x512 uint16 frames is 42 MB)
     MAX_BLOCK_BYTES = 48 << 20
 
     def __init__(self, frames, history: int, length: int, ahead: int = 0,
-                 camera: bool = True):
+                 camera: bool = True, gain_step: float = STEP):
         self.frames = frames
         self.history = history
         n, h, w = (int(v) for v in frames.shape)
@@ -32,7 +36,10 @@ class Reader:
         # the configuration takes the camera to be still)
         self.motion = CameraMotion((h, w)) if camera else None
         self.offsets = np.zeros((n, 2))
-        self.measured = 0           # frames [0, measured) have offsets
+        # the gain and level (G_t, O_t) of every frame read against frame 0's
+        self.agc = SensorGain(gain_step) if gain_step > 0 else None
+        self.gains = np.tile([1.0, 0.0], (n, 1))
+        self.measured = 0           # frames [0, measured) have offsets and gains
         frame_bytes = h * w * np.dtype(frames.dtype).itemsize
         chunk = max(1, int(getattr(frames, "block_frames", 1)))
         self.block = max(length, min(chunk, max(1, self.MAX_BLOCK_BYTES // frame_bytes)))
@@ -54,6 +61,9 @@ class Reader:
             self._fill(self.hi, stop, self.buf[keep:keep + stop - self.hi])
             self.hi = stop
         data = self.buf[lo - self.lo:b - self.lo]
+        gains = self.gains[lo:b]
+        if (gains != (1.0, 0.0)).any():
+            data = normalise(data, gains)
         return data[a - lo:], data[:a - lo]
 
     def _fill(self, start: int, stop: int, out: np.ndarray) -> None:
@@ -65,10 +75,15 @@ class Reader:
         # may hold NaN, which finds nothing there): one pass, no warning, no mask
         if isinstance(self.frames, FrameSource):
             check_values(out, start, getattr(self.frames, "path", None))
-        if self.motion is not None and stop > self.measured:
-            # frames skipped (windows with gaps) keep the last offset
+        if stop > self.measured:
+            # frames skipped (windows with gaps) keep the last offset and gain
             first = max(start, self.measured)
-            self.offsets[self.measured:first] = self.offsets[self.measured - 1] \
-                if self.measured else 0.0
-            self.offsets[first:stop] = self.motion.update(out[first - start:])
+            if self.measured:
+                self.offsets[self.measured:first] = self.offsets[self.measured - 1]
+                self.gains[self.measured:first] = self.gains[self.measured - 1]
+            if self.motion is not None:
+                self.offsets[first:stop] = self.motion.update(out[first - start:])
+            if self.agc is not None:
+                self.gains[first:stop] = self.agc.update(out[first - start:],
+                                                         self.offsets[first:stop])
             self.measured = stop

@@ -39,16 +39,20 @@ scene point at p in frame 0 is at p + C_t in frame t) come with each block.
 
 from __future__ import annotations
 
+import logging
 from typing import Iterator
 
 import cv2
 import numpy as np
 
+from irdetect.gain import STEP
 from irdetect.peaks import RING_PX, frame_peaks
 from irdetect.suppress import (camera_moves, future_frames, past_frames,
                                prefer_registered, suppress)
 from irdetect.track.regions import REGION
 from irdetect.verify import matched_frame, quantisation_floor, standardise
+
+log = logging.getLogger(__name__)
 
 #: the suppressor's settings the tracker uses unless given (``irdetect.config.SuppressConfig``)
 SUPPRESS_DEFAULTS = dict(method="auto", size=9, guard=1, history=12, gap=8, tolerance=1,
@@ -73,7 +77,7 @@ def detector_blocks(frames, *, length: int = 12, psf: float = 1.0, tile: int = 3
         Side (px) of the tiles of the local noise scale (``irdetect.verify.standardise``).
     suppression : dict, optional
         Keywords of ``irdetect.suppress.suppress`` (``SUPPRESS_DEFAULTS`` for those not
-        given).
+        given), and ``gain_step`` (``SuppressConfig.gain_step``).
 
     Yields
     ------
@@ -86,11 +90,15 @@ def detector_blocks(frames, *, length: int = 12, psf: float = 1.0, tile: int = 3
         offset): the camera's, except that a window on which ``auto`` took the image-fixed
         background although the offsets moved holds the last window's last offset (zeros
         unless the suppressor is ``auto`` or ``registered``).
+    gains : ndarray of shape (n, 2)
+        The gain and level (G_t, O_t) of its frames against frame 0's that the reader took
+        back (``irdetect.gain``; (1, 0) where the camera's gain control did not step).
     """
     from irdetect.pipeline.reader import Reader     # the process command's window reader
 
     sp = {**SUPPRESS_DEFAULTS, **(suppression or {})}
     sp.pop("long_memory", None)          # process's long memory: the tracker has none
+    gain_step = float(sp.pop("gain_step", STEP))     # the reader's (``irdetect.gain``)
     n = int(frames.shape[0])
     if n == 0:
         return
@@ -101,7 +109,7 @@ def detector_blocks(frames, *, length: int = 12, psf: float = 1.0, tile: int = 3
     # frames have no past of ``history`` frames)
     back = past_frames(**sp) if sp["method"] in ("temporal", "registered", "auto") else 0
     reader = Reader(frames, past_frames(**sp), length, max(max(ahead), back),
-                    camera=sp["method"] in ("auto", "registered"))
+                    camera=sp["method"] in ("auto", "registered"), gain_step=gain_step)
     scene = np.zeros((n, 2))            # the offsets the tracks' scene coordinates take
     floor = quantisation_floor(frames[0:1][0], psf)
     for s, extra in zip(starts, ahead):
@@ -137,7 +145,9 @@ def detector_blocks(frames, *, length: int = 12, psf: float = 1.0, tile: int = 3
         else:
             scene[s:stop] = before
         standardise([matched_frame(r, psf, out=r) for r in residual], tile, floor)
-        yield s, residual, scene[s:stop].copy()
+        yield s, residual, scene[s:stop].copy(), reader.gains[s:stop].copy()
+    if reader.agc is not None and reader.agc.summary():
+        log.info(reader.agc.summary())
 
 
 def _suppress_window(block, previous, following, camera, sp) -> tuple[np.ndarray, bool]:

@@ -285,7 +285,7 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     n_regions = 0
 
     def blocks():
-        """(first frame, frames' regions source, camera offsets) per block."""
+        """(first frame, frames' regions source, camera offsets, gains) per block."""
         if detector:
             yield from detector_blocks(frames, length=DETECTOR_WINDOW, psf=psf, tile=int(tile),
                                        suppression=suppression)
@@ -294,16 +294,16 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
             block = np.asarray(frames[start:start + window])
             if isinstance(frames, FrameSource):     # a file's frames must be finite
                 check_values(block, start, frames.path)
-            yield start, bright_up(block) if dark else block, None
+            yield start, bright_up(block) if dark else block, None, None
 
     with tqdm(total=n, unit="frame", desc="track", disable=not progress) as bar:
-        for start, block, off in blocks():
+        for start, block, off, gains in blocks():
             if off is not None:
                 offsets[start:start + len(block)] = off
                 if camera_sink is not None:
                     camera_sink(tables.from_columns(
                         tables.CAMERA, frame=np.arange(start, start + len(block)),
-                        dx=off[:, 0], dy=off[:, 1]))
+                        dx=off[:, 0], dy=off[:, 1], gain=gains[:, 0], level=gains[:, 1]))
             out = []
             for j, frame in enumerate(block):
                 seeds = None
