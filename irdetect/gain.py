@@ -10,7 +10,8 @@ Each frame is compared with the frame before it on their common part, registered
 camera's offsets rounded to whole pixels (``irdetect.camera``): the gain is the ratio of
 the two frames' standard deviations there, the geometric mean of the two least-squares
 slopes (each alone is biased by noise and misregistration, the one towards 0, the other
-away from it), and the map runs through the two means. Pixels at either frame's extreme
+away from it), and the map runs through the two means (on about 16,000 pixels of a
+regular grid). Pixels at either frame's extreme
 value (a clip) and either frame's 1 % tails are left out, so saturation and a glint do
 not pull it. A frame's step is taken only where it departs from 1 by more than ``step``
 and by more than four standard errors of the ratio (``sqrt((1 - r**2) / n)`` in log, r
@@ -27,8 +28,9 @@ import numpy as np
 #: the fraction by which a frame's gain must depart from 1 against the frame before it to
 #: be taken as a step of the camera's gain control (``SuppressConfig.gain_step``)
 STEP = 0.05
-#: frames are compared on every STRIDE-th pixel of every STRIDE-th row
-STRIDE = 2
+#: frames are compared on about this many pixels (every k-th pixel of every k-th row):
+#: the ratio's standard error is then under 0.8 %
+SAMPLES = 16384
 #: the fraction of pixels left out at each end of either frame's range
 TAIL = 0.01
 
@@ -62,8 +64,9 @@ def frame_gain(previous: np.ndarray, frame: np.ndarray, shift=(0, 0)) -> tuple:
     # frame[y, x] shows what previous[y - dy, x - dx] showed
     fy, fx = slice(max(dy, 0), h + min(dy, 0)), slice(max(dx, 0), w + min(dx, 0))
     py, px = slice(max(-dy, 0), h + min(-dy, 0)), slice(max(-dx, 0), w + min(-dx, 0))
-    p = np.asarray(previous[py, px][::STRIDE, ::STRIDE], np.float64).ravel()
-    f = np.asarray(frame[fy, fx][::STRIDE, ::STRIDE], np.float64).ravel()
+    k = max(1, round(np.sqrt((h - abs(dy)) * (w - abs(dx)) / SAMPLES)))
+    p = np.asarray(previous[py, px][::k, ::k], np.float32).ravel()
+    f = np.asarray(frame[fy, fx][::k, ::k], np.float32).ravel()
     keep = np.isfinite(p) & np.isfinite(f)
     p, f = p[keep], f[keep]
     if p.size < 16:
@@ -76,8 +79,8 @@ def frame_gain(previous: np.ndarray, frame: np.ndarray, shift=(0, 0)) -> tuple:
     n = int(p.size)
     if n < 16:
         return 1.0, 0.0, 0.0, 0.0, n
-    mp, mf = float(p.mean()), float(f.mean())
-    p, f = p - mp, f - mf
+    mp, mf = float(p.mean(dtype=np.float64)), float(f.mean(dtype=np.float64))
+    p, f = (p - mp).astype(np.float64), (f - mf).astype(np.float64)
     sp, sf = float(np.sqrt(p @ p / n)), float(np.sqrt(f @ f / n))
     if sp <= 0.0 or sf <= 0.0:
         return 1.0, mp, mf, 0.0, n

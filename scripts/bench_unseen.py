@@ -22,6 +22,11 @@ does on scenes it was not tuned on. Scene i is drawn with
                  horizon step of 5-15 sigma at 0.3-0.7 of the height, tilt -10..10
                  degrees); hot (10-200 hot pixels of 5-20 sigma)
   targets        uniform integer 0 .. 8
+  gain control   in a third of the scenes the camera's gain switches between 1 and
+                 1 + S every P frames (S uniform 0.05 .. 0.3 in size, either sign; P
+                 uniform integer 10 .. 40; the simulator's ``agc_step``, ``agc_period``);
+                 drawn after every other value, so the scenes of runs before it
+                 (2026-12-07) are otherwise the same
 
 starting from the ``wan2008`` preset. When the targets' path (speed + |pan|) x (frames
 - 1) is longer than the simulator accepts (2 x the longer side), the frames are cut so
@@ -107,6 +112,10 @@ HORIZON_ROW = (0.3, 0.7)
 HORIZON_TILT = (-10.0, 10.0)      # degrees
 HOT_PIXELS = (10, 200)
 HOT_AMPLITUDE = (5.0, 20.0)       # x noise sigma
+AGC_SHARE = 1 / 3                 # scenes whose camera's gain control steps
+AGC_STEP = (0.05, 0.3)            # the step's size, either sign
+AGC_PERIOD = (10, 40)             # frames between steps
+GAIN_KINDS = ("none", "steps")
 N_TARGETS = (0, 8)
 MARGIN = 8.0
 #: the simulator refuses paths longer than 2 x the longer side; scenes are cut to 1.5 x
@@ -155,7 +164,8 @@ def draw_scene(index: int, seed: int, max_frames: int = MAX_FRAMES,
         and the per-scene table use: ``speed`` (scene speed used), ``speed_drawn``,
         ``pan`` (|pan| used), ``jitter``, ``snr``, ``psf_sigma``, ``clutter``, ``dtype``,
         ``height``, ``width``, ``max_side``, ``n_frames`` (used), ``frames_drawn``,
-        ``n_targets``, ``camera`` (kind).
+        ``n_targets``, ``camera`` (kind), ``agc`` (the gain's step, 0: none) and
+        ``gain control`` (kind).
     """
     rng = np.random.default_rng(seed + index)
     h = int(rng.integers(MIN_SIZE, max_size, endpoint=True))
@@ -192,6 +202,11 @@ def draw_scene(index: int, seed: int, max_frames: int = MAX_FRAMES,
         b_hi = max(b_lo, min(b_hi, top - peak - (snr + 3) * sigma))
     background = float(rng.uniform(b_lo, b_hi))
     sim_seed = int(rng.integers(2 ** 31))
+    # drawn last: the values above are those of the runs before the gain control
+    agc = float(rng.uniform(*AGC_STEP)) * (1.0 if rng.random() < 0.5 else -1.0)
+    agc_period = int(rng.integers(AGC_PERIOD[0], AGC_PERIOD[1], endpoint=True))
+    if rng.random() >= AGC_SHARE:
+        agc = 0.0
 
     # paths the simulator accepts: cut the frames, then the speed, then the pan
     longer = max(h, w)
@@ -208,14 +223,15 @@ def draw_scene(index: int, seed: int, max_frames: int = MAX_FRAMES,
     ov.update(height=h, width=w, n_frames=n_used, dtype=dtype, background=background,
               noise_sigma=sigma, n_targets=n_targets, snr=snr, psf_sigma=psf,
               speed=[s_used, s_used], directions=[], margin=margin,
-              camera_pan=pan_v, camera_jitter=jitter)
+              camera_pan=pan_v, camera_jitter=jitter, agc_step=agc, agc_period=agc_period)
     moving, shaking = p_used >= STILL, jitter >= STILL
     camera = CAMERA_KINDS[int(moving) + 2 * int(shaking)]
     return {"index": index, "overrides": ov, "sim_seed": sim_seed, "speed": s_used,
             "speed_drawn": speed, "pan": p_used, "pan_drawn": pan, "jitter": jitter,
             "snr": snr, "psf_sigma": psf, "clutter": clutter, "dtype": dtype, "height": h,
             "width": w, "max_side": longer, "n_frames": n_used, "frames_drawn": n,
-            "n_targets": n_targets, "camera": camera}
+            "n_targets": n_targets, "camera": camera, "agc": agc,
+            "gain control": GAIN_KINDS[int(agc != 0.0)]}
 
 
 def render_scene(scene: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -567,9 +583,10 @@ def missed_parts(rows) -> list[str]:
 def strata(scenes: list[dict]) -> list[tuple[str, str, list[dict]]]:
     """Every (grouping, label, scenes) row of the strata table, "all" first."""
     rows = [("all", "all scenes", scenes)]
-    kinds = {"camera": CAMERA_KINDS, "clutter": CLUTTER, "dtype": DTYPES}
+    kinds = {"camera": CAMERA_KINDS, "clutter": CLUTTER, "dtype": DTYPES,
+             "gain control": GAIN_KINDS}
     for group in ("speed (px/frame)", "image speed (px/frame)", "pan (px/frame)",
-                  "PSF / target size", "SNR", "camera", "clutter", "dtype",
+                  "PSF / target size", "SNR", "camera", "clutter", "dtype", "gain control",
                   "frame size (longer side)",
                   "targets apart (share of target-frames within 2 G of another)"):
         if group in kinds:
@@ -685,7 +702,7 @@ def scene_cells(s: dict) -> str:
            else f"{fmt(s['pan'], 2)} (of {fmt(s['pan_drawn'], 2)})")
     head = (f"| {s['index']} | {s['height']} x {s['width']} | {frames} | {s['dtype']} | "
             f"{s['psf_sigma']:.2f} | {speed} | {pan} | {s['jitter']:.2f} | {s['snr']:.1f} | "
-            f"{s['clutter']} | {s['n_targets']} | ")
+            f"{s['clutter']} | {fmt(s['agc'], 2) if s['agc'] else '–'} | {s['n_targets']} | ")
     if s["error"]:
         return head + f"error: {s['error'][:80]} | | | | | | |"
     t = totals([s])
@@ -821,8 +838,9 @@ def write_report(path: Path, scenes: list[dict], args, total: float) -> None:
               "and holds the camera still along it); fps of detect_sequence.",
               "",
               "| scene | H x W | frames | dtype | psf | speed | pan | jitter | snr | clutter | "
-              "targets | Pd | false / frame | Pt | tracks false | camera err px | fps | clip % |",
-              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+              "gain step | targets | Pd | false / frame | Pt | tracks false | camera err px | "
+              "fps | clip % |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     lines += [scene_cells(s) for s in scenes]
     write_atomic(path, "\n".join(lines) + "\n")
 
@@ -855,13 +873,13 @@ def main(argv=None) -> int:
              for i in range(args.scenes)]
     if args.draw_only:
         for task in tasks:
-            s = draw_scene(*task)
+            s = draw_scene(*task[:4])                    # the config is the run's
             load_scenario(PRESET, **s["overrides"])     # what the simulator validates
             print(f"scene {s['index']}: {s['height']}x{s['width']} {s['n_frames']}"
                   f"/{s['frames_drawn']} frames {s['dtype']} psf {s['psf_sigma']:.2f} "
                   f"speed {s['speed']:.2f}/{s['speed_drawn']:.2f} pan {s['pan']:.2f} "
                   f"jitter {s['jitter']:.2f} snr {s['snr']:.1f} {s['clutter']} "
-                  f"{s['n_targets']} targets")
+                  f"gain step {s['agc']:.2f} {s['n_targets']} targets")
         return 0
     t_all = time.perf_counter()
     scenes = []
