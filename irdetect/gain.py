@@ -15,9 +15,10 @@ regular grid). Pixels at either frame's extreme
 value (a clip) and either frame's 1 % tails are left out, so saturation and a glint do
 not pull it. A frame's step is taken only where it departs from 1 by more than ``step``
 and by more than four standard errors of the ratio (``sqrt((1 - r**2) / n)`` in log, r
-the frames' correlation over n pixels): the gain of a steady camera moves 0.01-1.1 % from
-frame to frame on the recorded folders (docs/real.md), and a step below ``step`` is left
-to the background's own drift. Steps compose into the running map (G_t, O_t) from frame
+the frames' correlation over n pixels), and where r is at least ``TEXTURE``: the gain of
+a steady camera moves by at most 2.2 % from frame to frame on the recorded folders
+(docs/detection.md), a step below ``step`` is left to the background's own drift, and
+frames that correlate less are noise, whose gain matters little, or misregistered. Steps compose into the running map (G_t, O_t) from frame
 0's scale to frame t's, raw = G_t x + O_t; ``normalise`` takes a frame back.
 """
 
@@ -33,6 +34,11 @@ STEP = 0.05
 SAMPLES = 16384
 #: the fraction of pixels left out at each end of either frame's range
 TAIL = 0.01
+#: a step is taken only where the two frames' common part correlates at least this much
+#: (their structure's variance 4 x the noise's or more): below it a gain step leaves
+#: little of the structure in the residual, and misregistered frames (a camera's motion
+#: not measured) correlate less and change their spread with what comes into view
+TEXTURE = 0.8
 
 
 def frame_gain(previous: np.ndarray, frame: np.ndarray, shift=(0, 0)) -> tuple:
@@ -123,7 +129,8 @@ class SensorGain:
                 g, mp, mf, r, n = frame_gain(self.previous, frame, offsets[i] - self.offset)
                 change = abs(np.log(g))
                 error = np.sqrt(max(1.0 - r * r, 0.0) / max(n, 1))
-                if change > np.log1p(self.step) and change > 4.0 * error:
+                if (change > np.log1p(self.step) and change > 4.0 * error
+                        and r >= TEXTURE):
                     # frame = g (previous - mp) + mf and previous = G x + O
                     self.level = g * (self.level - mp) + mf
                     self.gain *= g
