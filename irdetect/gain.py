@@ -7,19 +7,19 @@ keeps (g - 1) times its scene for as long as the background spans frames of the 
 gain: a 15 % step puts 15 % of every edge and cloud into the residual.
 
 Each frame is compared with the frame before it on their common part, registered by the
-camera's offsets rounded to whole pixels (``irdetect.camera``): the gain is the ratio of
-the two frames' standard deviations there, the geometric mean of the two least-squares
-slopes (each alone is biased by noise and misregistration, the one towards 0, the other
-away from it), and the map runs through the two means (on about 16,000 pixels of a
-regular grid). Pixels at either frame's extreme
-value (a clip) and either frame's 1 % tails are left out, so saturation and a glint do
-not pull it. A frame's step is taken only where it departs from 1 by more than ``step``
-and by more than four standard errors of the ratio (``sqrt((1 - r**2) / n)`` in log, r
-the frames' correlation over n pixels), and where r is at least ``TEXTURE``: the gain of
-a steady camera moves by at most 2.2 % from frame to frame on the recorded folders
-(docs/detection.md), a step below ``step`` is left to the background's own drift, and
-frames that correlate less are noise, whose gain matters little, or misregistered. Steps compose into the running map (G_t, O_t) from frame
-0's scale to frame t's, raw = G_t x + O_t; ``normalise`` takes a frame back.
+camera's offsets rounded to whole pixels (``irdetect.camera``), on about 16,000 pixels of
+a regular grid: the gain is the ratio of the two frames' standard deviations there, the
+geometric mean of the two least-squares slopes (each alone is biased by noise and
+misregistration, the one towards 0, the other away from it), and the map runs through
+the two means. Pixels at either frame's extreme value (a clip) and either frame's 1 %
+tails are left out, so saturation and a glint do not pull it. A frame's step is taken
+only where it departs from 1 by more than ``step`` and by more than four standard errors
+of the ratio (``sqrt((1 - r**2) / n)`` in log, r the frames' correlation over n pixels),
+and where r is at least ``TEXTURE``: the gain of a steady camera moves by at most 2.2 %
+from frame to frame on the recorded folders (docs/detection.md), a step below ``step``
+is left to the background's own drift, and frames that correlate less are noise, whose
+gain matters little, or misregistered. Steps compose into the running map (G_t, O_t)
+from frame 0's scale to frame t's, raw = G_t x + O_t; ``normalise`` takes a frame back.
 """
 
 from __future__ import annotations
@@ -100,7 +100,8 @@ class SensorGain:
     ----------
     step : float
         A frame's gain against the one before it is taken as a step where it departs from
-        1 by more than this fraction (and by four standard errors); 0 or less: never.
+        1 by more than this fraction (and by four standard errors, the frames correlating
+        at ``TEXTURE`` or more); 0 or less: never.
 
     Examples
     --------

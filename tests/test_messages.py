@@ -115,6 +115,7 @@ BAD_OPTIONS = [
     ("simulate s.h5 --camera-pan 1000 0", "--camera-pan 1000 0: targets at 1 px/frame and a "
      "camera pan of 1000 px/frame leave"),
     ("simulate s.h5 --agc 0.15 0", "--agc 0.15 0: agc_period must be >= 1, got 0"),
+    ("simulate s.h5 --agc 0.15 2.5", "--agc 0.15 2.5: the period must be a whole number"),
     ("simulate s.h5 --agc -2 20", "--agc -2 20: agc_step must be a number > -1"),
     ("simulate s.h5 --seed -1", "--seed must be an integer >= 0, got -1"),
     ("simulate s.h5 --scenario harbour --frames 0", "--frames 0: n_frames must be >= 1"),

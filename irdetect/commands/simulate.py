@@ -85,7 +85,11 @@ def run(args) -> int:
     if args.camera_pan:
         overrides["camera_pan"] = list(args.camera_pan)
     if args.agc:
-        overrides.update(agc_step=args.agc[0], agc_period=int(args.agc[1]))
+        step, period = args.agc
+        if not period.is_integer():
+            raise InputError(f"--agc {step:g} {period:g}: the period must be a whole number "
+                             "of frames")
+        overrides.update(agc_step=step, agc_period=int(period))
     if args.size:
         w, _, h = args.size.lower().partition("x")
         if not (w.isdigit() and h.isdigit()):
