@@ -14,12 +14,14 @@ misregistration, the one towards 0, the other away from it), and the map runs th
 the two means. Pixels at either frame's extreme value (a clip) and either frame's 1 %
 tails are left out, so saturation and a glint do not pull it. A frame's step is taken
 only where it departs from 1 by more than ``step`` and by more than four standard errors
-of the ratio (``sqrt((1 - r**2) / n)`` in log, r the frames' correlation over n pixels),
-and where r is at least ``TEXTURE``: the gain of a steady camera moves by at most 2.2 %
-from frame to frame on the recorded folders (docs/detection.md), a step below ``step``
-is left to the background's own drift, and frames that correlate less are noise, whose
-gain matters little, or misregistered. Steps compose into the running map (G_t, O_t)
-from frame 0's scale to frame t's, raw = G_t x + O_t; ``normalise`` takes a frame back.
+of the ratio (``sqrt((1 - r**2) / n)`` in log, r the frames' correlation over n
+pixels): the gain of a steady camera moves by at most 2.2 % from frame to frame on the
+recorded folders (docs/detection.md), and a step below ``step`` is left to the
+background's own drift. The correlation is not required to be high: frames of sparse
+structure (hot pixels, a few edges) correlate little and still leave (g - 1) times that
+structure after a step (docs/detection.md). Steps compose into the running map (G_t,
+O_t) from frame 0's scale to frame t's, raw = G_t x + O_t; ``normalise`` takes a frame
+back.
 """
 
 from __future__ import annotations
@@ -34,11 +36,6 @@ STEP = 0.05
 SAMPLES = 16384
 #: the fraction of pixels left out at each end of either frame's range
 TAIL = 0.01
-#: a step is taken only where the two frames' common part correlates at least this much
-#: (their structure's variance 4 x the noise's or more): below it a gain step leaves
-#: little of the structure in the residual, and misregistered frames (a camera's motion
-#: not measured) correlate less and change their spread with what comes into view
-TEXTURE = 0.8
 
 
 def frame_gain(previous: np.ndarray, frame: np.ndarray, shift=(0, 0)) -> tuple:
@@ -100,8 +97,7 @@ class SensorGain:
     ----------
     step : float
         A frame's gain against the one before it is taken as a step where it departs from
-        1 by more than this fraction (and by four standard errors, the frames correlating
-        at ``TEXTURE`` or more); 0 or less: never.
+        1 by more than this fraction (and by four standard errors); 0 or less: never.
 
     Examples
     --------
@@ -130,8 +126,7 @@ class SensorGain:
                 g, mp, mf, r, n = frame_gain(self.previous, frame, offsets[i] - self.offset)
                 change = abs(np.log(g))
                 error = np.sqrt(max(1.0 - r * r, 0.0) / max(n, 1))
-                if (change > np.log1p(self.step) and change > 4.0 * error
-                        and r >= TEXTURE):
+                if change > np.log1p(self.step) and change > 4.0 * error:
                     # frame = g (previous - mp) + mf and previous = G x + O
                     self.level = g * (self.level - mp) + mf
                     self.gain *= g
