@@ -572,17 +572,20 @@ class _Profile:
         d = float(lags[k])
         if 0 < k < len(lags) - 1 and np.isfinite(score[k - 1]) and np.isfinite(score[k + 1]):
             d += _peak_offset(score[k - 1], score[k], score[k + 1])
-        # 1-D Lucas-Kanade: cur(s + d) ~ ref(s)  =>  d -= sum(ref' e) / sum(ref'^2)
+        # 1-D Lucas-Kanade with the frame's gain and level against the keyframe's (the
+        # camera's gain control): cur(s + d) ~ a ref(s) + b  =>  e = cur(s + d) - ref(s)
+        # ~ -r ref'(s) + (a - 1) ref(s) + b, least squares for (r, a - 1, b)
         s = np.arange(self.bins, dtype=float)
         slope = np.gradient(self.ref)
         good = np.isfinite(cur)
         for _ in range(self.STEPS):
             e = np.interp(s + d, s[good], cur[good], left=np.nan, right=np.nan) - self.ref
             ok = np.isfinite(e) & np.isfinite(slope)
-            den = float(np.dot(slope[ok], slope[ok]))
-            if not den > 0:
+            if not float(np.dot(slope[ok], slope[ok])) > 0:
                 break
-            r = -float(np.dot(slope[ok], e[ok])) / den
+            basis = np.stack([-slope[ok], self.ref[ok] - self.ref[ok].mean(),
+                              np.ones(int(ok.sum()))], axis=1)
+            r = float(np.linalg.lstsq(basis, e[ok], rcond=None)[0][0])
             if abs(r) > 1.0:                    # the correlation is good to a bin
                 break
             d += r

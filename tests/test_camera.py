@@ -116,6 +116,19 @@ def _horizon(offsets, shape=(240, 320), tilt=0.1, step=60.0, noise=5.0, rng=0):
     return frames + g.normal(0, noise, frames.shape).astype(np.float32)
 
 
+def test_a_lone_horizon_is_followed_across_a_gain_step():
+    # the camera's gain control steps by 25 % about the sky's level at frame 12 and back
+    # at frame 24: the profile's fit takes the frame's gain and level beside the shift (it
+    # had read a step as 1.2 px of motion across the edge, bench_unseen's scene 92)
+    truth = pan(36, (0.0, -1.5))
+    frames = _horizon(truth, noise=2.0)
+    gain = np.where((np.arange(36) // 12) % 2 == 1, 1.25, 1.0)[:, None, None]
+    stepped = ((frames - 100.0) * gain + 100.0).astype(np.float32)
+    n = np.array([-0.1, 1.0]) / np.hypot(0.1, 1.0)
+    steps = np.diff(estimate_motion(stepped) - truth, axis=0) @ n
+    assert np.abs(steps).max() < 0.2
+
+
 def test_a_lone_horizon_gives_the_camera_across_it():
     # a pan over a horizon and featureless sky: the motion across the edge is measured,
     # along it the camera is taken to hold still (it cannot be told); phase correlation
