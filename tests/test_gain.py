@@ -147,3 +147,18 @@ def test_a_gain_that_steps_every_18_frames_does_not_cost_the_targets(step):
     assert fixed["detected"] >= 18
     assert undone["detected"] >= fixed["detected"] - 1 and undone["false"] <= fixed["false"]
     assert kept["detected"] <= fixed["detected"] - 10
+
+
+@pytest.mark.parametrize("step", [-0.1, 1.0, 2.0])
+def test_a_gain_step_out_of_range_is_refused_by_both_commands(tmp_path, step):
+    from irdetect.errors import InputError
+    from irdetect.pipeline import check_config
+    from irdetect.track.detector import detector_blocks
+    config = ProcessConfig()
+    config = dataclasses.replace(config, suppress=dataclasses.replace(config.suppress,
+                                                                     gain_step=step))
+    with pytest.raises(InputError, match="gain_step must be in"):
+        check_config(config, tmp_path / "c.toml")
+    with pytest.raises(ValueError, match="gain_step must be in"):
+        next(detector_blocks(np.zeros((20, 32, 32), np.float32),
+                             suppression={"gain_step": step}))

@@ -32,11 +32,10 @@ OPTIONS = {"snr": "--snr", "n_frames": "--frames", "width": "--size", "height": 
 def given_options(args, options: dict[str, str]) -> dict[str, str]:
     """Key -> the option as given on the command line (``"--size 0x0"``), for the keys
     of ``options`` whose option was given (``args`` holds it under the key's name, or
-    ``size`` for width and height)."""
+    ``size`` for width and height, ``agc`` for its step and period)."""
     out = {}
     for key, option in options.items():
-        value = getattr(args, option[2:].replace("-", "_") if option in ("--size", "--agc")
-                        else key, None)
+        value = getattr(args, {"--size": "size", "--agc": "agc"}.get(option, key), None)
         if value is not None:
             text = " ".join(f"{v:g}" if isinstance(v, float) else str(v)
                             for v in (value if isinstance(value, (list, tuple)) else [value]))

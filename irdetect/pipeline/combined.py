@@ -123,9 +123,7 @@ class StageParams:
             raise ValueError(f"suppress.long_memory must be an integer >= 0, "
                              f"got {self.long_memory!r}")
         # the reader measures the camera's gain control and undoes it
-        self.gain_step = float(self.suppress.pop("gain_step"))
-        if not 0.0 <= self.gain_step < 1.0:
-            raise ValueError(f"suppress.gain_step must be in [0, 1), got {self.gain_step!r}")
+        self.gain_step = self.suppress.pop("gain_step")
         self.combine = {**asdict(config.combine), "step": config.combine.length}
         self.detect = asdict(config.detect)
         self.fuse = asdict(config.fuse)

@@ -37,6 +37,8 @@ class Reader:
         self.motion = CameraMotion((h, w)) if camera else None
         self.offsets = np.zeros((n, 2))
         # the gain and level (G_t, O_t) of every frame read against frame 0's
+        if not 0.0 <= gain_step < 1.0:
+            raise ValueError(f"suppress.gain_step must be in [0, 1), got {gain_step!r}")
         self.agc = SensorGain(gain_step) if gain_step > 0 else None
         self.gains = np.tile([1.0, 0.0], (n, 1))
         self.measured = 0           # frames [0, measured) have offsets and gains

@@ -98,7 +98,7 @@ def detector_blocks(frames, *, length: int = 12, psf: float = 1.0, tile: int = 3
 
     sp = {**SUPPRESS_DEFAULTS, **(suppression or {})}
     sp.pop("long_memory", None)          # process's long memory: the tracker has none
-    gain_step = float(sp.pop("gain_step", STEP))     # the reader's (``irdetect.gain``)
+    gain_step = sp.pop("gain_step", STEP)           # the reader's (``irdetect.gain``)
     n = int(frames.shape[0])
     if n == 0:
         return
