@@ -24,6 +24,7 @@ import typing
 from dataclasses import dataclass, field
 
 from irdetect.errors import InputError, check_input_file
+from irdetect.gain import STEP
 
 
 # --- detection front end (wan2008; issue 3) -------------------------------------------
@@ -51,7 +52,7 @@ class SuppressConfig:
     #: a frame whose gain departs by more than this fraction from the frame before it
     #: is a step of the camera's gain control, and the frames after it are taken back
     #: to frame 0's gain and level before suppression (``irdetect.gain``); 0: off
-    gain_step: float = 0.05
+    gain_step: float = STEP
 
 
 @dataclass(frozen=True)

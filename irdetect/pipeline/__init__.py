@@ -309,8 +309,8 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
             done = pending.popleft()
             yield with_camera(emit(done, tables.empty(tables.SEGMENT)),
                               done.start + cc.length, done.peaks)
-        if reader.agc is not None and reader.agc.summary():
-            log.info(reader.agc.summary())
+        if steps := reader.gain_steps():
+            log.info(steps)
     finally:
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)

@@ -89,3 +89,7 @@ class Reader:
                 self.gains[first:stop] = self.agc.update(out[first - start:],
                                                          self.offsets[first:stop])
             self.measured = stop
+
+    def gain_steps(self) -> str | None:
+        """One line on the gain steps taken so far (``SensorGain.summary``), or None."""
+        return None if self.agc is None else self.agc.summary()

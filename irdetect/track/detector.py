@@ -146,8 +146,8 @@ def detector_blocks(frames, *, length: int = 12, psf: float = 1.0, tile: int = 3
             scene[s:stop] = before
         standardise([matched_frame(r, psf, out=r) for r in residual], tile, floor)
         yield s, residual, scene[s:stop].copy(), reader.gains[s:stop].copy()
-    if reader.agc is not None and reader.agc.summary():
-        log.info(reader.agc.summary())
+    if steps := reader.gain_steps():
+        log.info(steps)
 
 
 def _suppress_window(block, previous, following, camera, sp) -> tuple[np.ndarray, bool]:
