@@ -149,10 +149,27 @@ class SensorGain:
                 f"were taken back to frame 0's gain (suppress.gain_step)")
 
 
-def normalise(frames: np.ndarray, gains: np.ndarray) -> np.ndarray:
+def normalise(frames: np.ndarray, gains: np.ndarray, limits=None) -> np.ndarray:
     """Frames (n, H, W) taken to frame 0's gain and level: (raw - O_t) / G_t, float32.
 
-    ``gains``: (G_t, O_t) of shape (n, 2) (``SensorGain.update``)."""
+    Parameters
+    ----------
+    frames : ndarray of shape (n, H, W)
+        Raw frames, any real dtype.
+    gains : ndarray of shape (n, 2)
+        (G_t, O_t) of each frame (``SensorGain.update``).
+    limits : (float, float) or None
+        The raw values the sensor clips at (an integer dtype's range). A pixel at a limit
+        is known only as a bound, and the bound moves with the gain: a bright edge
+        saturated after a step up reads lower, taken back, than in the frames before it,
+        and a background of those frames leaves it as a positive residual. The frames
+        are then clipped to the range every one of them can show, from
+        max_t (lo - O_t) / G_t to min_t (hi - O_t) / G_t, on which they agree.
+    """
     g = gains[:, 0].astype(np.float32)[:, None, None]
     o = gains[:, 1].astype(np.float32)[:, None, None]
-    return (np.asarray(frames, np.float32) - o) / g
+    out = (np.asarray(frames, np.float32) - o) / g
+    if limits is not None:
+        lo, hi = limits
+        np.clip(out, ((lo - o) / g).max(), ((hi - o) / g).min(), out=out)
+    return out

@@ -128,6 +128,30 @@ def test_the_reader_gives_the_frames_of_a_stepped_gain_back_on_frame_0s_scale():
     assert off.read(12, 18)[0].dtype == np.uint8
 
 
+def test_the_reader_clips_every_frame_to_the_range_all_of_them_can_show():
+    # a bright patch at 240 over 100 grey levels saturates at 255 after a step of +15 %:
+    # taken back it reads (255 - 100) / 1.15 + 100 = 234.8, and a background of the frames
+    # before the step would leave 5 grey levels of it in those after; every frame of a
+    # window that spans the step is clipped to 234.8 instead
+    rng = np.random.default_rng(5)
+    clean = _views(_scene(rng), [(8, 8)] * 24) + rng.normal(0, 1.0, (24, 200, 240))
+    clean[:, 80:100, 100:120] = 240.0
+    stepped = clean.copy()
+    stepped[12:] = 1.15 * (clean[12:] - 100.0) + 100.0
+    stepped = np.clip(np.rint(stepped), 0, 255).astype(np.uint8)
+    assert (stepped[12:, 80:100, 100:120] == 255).all()
+    reader = Reader(stepped, history=8, length=6)
+    for a in (0, 6):
+        reader.read(a, a + 6)
+    window, history = reader.read(12, 18)
+    before, after = history[-1, 80:100, 100:120], window[0, 80:100, 100:120]
+    assert np.abs(after - before).max() < 0.5
+    assert after.mean() == pytest.approx(155 / reader.gains[12, 0] + 100, abs=1.0)
+    # the frames taken back alone disagree there by the clip's 5 grey levels
+    assert (normalise(stepped[4:18], reader.gains[4:18])[-1, 80:100, 100:120]
+            < normalise(stepped[4:18], reader.gains[4:18])[7, 80:100, 100:120] - 4).all()
+
+
 @pytest.mark.parametrize("step", [0.3, -0.25])
 def test_a_gain_that_steps_every_18_frames_does_not_cost_the_targets(step):
     # dim targets (SNR 3) under clouds of 120 grey levels: each step leaves 30 grey levels

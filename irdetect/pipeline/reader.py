@@ -42,6 +42,10 @@ class Reader:
         self.agc = SensorGain(gain_step) if gain_step > 0 else None
         self.gains = np.tile([1.0, 0.0], (n, 1))
         self.measured = 0           # frames [0, measured) have offsets and gains
+        # the raw values an integer sensor clips at (``normalise``)
+        kind = np.dtype(frames.dtype)
+        self.limits = ((np.iinfo(kind).min, np.iinfo(kind).max) if kind.kind in "iu"
+                       else None)
         frame_bytes = h * w * np.dtype(frames.dtype).itemsize
         chunk = max(1, int(getattr(frames, "block_frames", 1)))
         self.block = max(length, min(chunk, max(1, self.MAX_BLOCK_BYTES // frame_bytes)))
@@ -65,7 +69,7 @@ class Reader:
         data = self.buf[lo - self.lo:b - self.lo]
         gains = self.gains[lo:b]
         if (gains != (1.0, 0.0)).any():
-            data = normalise(data, gains)
+            data = normalise(data, gains, self.limits)
         return data[a - lo:], data[:a - lo]
 
     def _fill(self, start: int, stop: int, out: np.ndarray) -> None:
