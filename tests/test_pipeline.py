@@ -343,6 +343,24 @@ def test_tracks_through_a_panning_camera_follow_their_targets(seed):
     assert np.array_equal(pairs, full[[0, 1], [0, 1]])
 
 
+def test_no_detection_is_reported_outside_the_image_and_its_track_keeps_it():
+    # six targets crossing a 200x160 frame that pans 3 px/frame: three windows' tracks
+    # put the target outside the image at the window's middle frame (it entered later or
+    # left earlier), which were reported as detections there before; their votes still
+    # start the tracks
+    from irdetect.metrics.initiation import score_track_paths
+
+    frames, truth = simulate("wan2008", rng=2, n_frames=60, height=160, width=200,
+                             n_targets=6, snr=8.0, psf_sigma=1.0, speed=(1.0, 1.0),
+                             camera_pan=(0.0, -3.0), cloud_amplitude=20.0, margin=4.0)
+    out = detect_sequence(frames)
+    d = out["detections"]
+    assert len(d) >= 20
+    assert ((d["x"] >= -0.5) & (d["x"] <= 199.5) & (d["y"] >= -0.5) & (d["y"] <= 159.5)).all()
+    s = score_track_paths(out["tracks"], truth, gate=6.0, camera=out["camera"])
+    assert len(out["tracks"]) == 6 and s["n_false"] == 0
+
+
 @pytest.mark.parametrize("seed", [1, 2, 3])
 @pytest.mark.parametrize("speed", [0.5, 3.0])
 def test_a_7x7_px_target_is_found(seed, speed):

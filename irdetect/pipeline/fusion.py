@@ -583,8 +583,9 @@ def finish(combined: np.ndarray, peaks: np.ndarray, camera: np.ndarray,
     Returns
     -------
     dict
-        ``frame_tracks`` (``tables.FRAME_TRACK``), ``detections`` (``tables.DETECTION``)
-        and ``tracks`` (``tables.TRACK``, ``path`` set).
+        ``frame_tracks`` (``tables.FRAME_TRACK``), ``detections`` (``tables.DETECTION``,
+        those inside the image at their window's middle frame) and ``tracks``
+        (``tables.TRACK``, ``path`` set; every detection votes, outside or not).
     """
     from irdetect.combine import window_starts
     from irdetect.peaks import frame_level
@@ -614,7 +615,13 @@ def finish(combined: np.ndarray, peaks: np.ndarray, camera: np.ndarray,
                              starts=starts[:regular], length=cc.length)
     tracks = extend_tracks(tracks, detections[tail], camera, gate)
     tracks["path"] = track_paths(tracks, detections, camera, gate)
-    return {"frame_tracks": ft, "detections": detections, "tracks": tracks}
+    # a detection whose position at its window's middle frame lies outside the image
+    # was seen in under half of the window's frames (the target entered after that frame
+    # or left before it): it votes for its track's line, but is not reported as seen
+    h, w = shape
+    inside = ((detections["x"] >= -0.5) & (detections["x"] <= w - 0.5)
+              & (detections["y"] >= -0.5) & (detections["y"] <= h - 0.5))
+    return {"frame_tracks": ft, "detections": detections[inside], "tracks": tracks}
 
 
 def extend_tracks(tracks: np.ndarray, detections: np.ndarray, camera, gate: float) -> np.ndarray:
