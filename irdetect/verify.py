@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.ndimage import distance_transform_edt
 
 from irdetect.kernels.sampling import climb, patch_sums, row_order, track_sums
 from irdetect.robust import (median, median_mad_sigma, tile_map, tile_samples,
@@ -155,20 +154,7 @@ def quantisation_floor(frame, smooth: float) -> float:
     return float(np.sqrt(1 / 12) * np.sum(k ** 2))
 
 
-def blank_tiles(residual, tile: int = 32) -> np.ndarray:
-    """Tiles of a window's residual frames that mostly show nothing.
-
-    ``residual``: sequence of (H, W) suppressed frames of one window. A suppressor leaves
-    0 where a pixel has no background (``irdetect.suppress``: the strip a pan brings into
-    view, which no past frame covers). Returns bool (ny, nx): the tiles of
-    ``standardise``'s grid more than half of whose samples (every 3rd frame, a 2-px grid)
-    are exactly 0.
-    """
-    sub = tile_samples(np.stack([np.asarray(f) for f in list(residual)[::3]]), tile, 2)
-    return (sub == 0).mean(axis=(0, -1)) > 0.5
-
-
-def standardise(frames, tile: int = 32, floor: float = 0.0, blank=None) -> list:
+def standardise(frames, tile: int = 32, floor: float = 0.0) -> list:
     """Divide a window's matched frames by their local robust noise scale (in place).
 
     ``frames``: sequence of (H, W) float32 matched frames of one window. The scale is
@@ -178,11 +164,7 @@ def standardise(frames, tile: int = 32, floor: float = 0.0, blank=None) -> list:
     than 2 tiles gets one scale. Structured clutter (cloud edges) then counts in units of
     its own residual level, as the CFAR of ``irdetect.detect`` does per combined frame.
     Without ``floor``, an H.264 video's still scene (blocks copied bit for bit: MAD 0 in
-    most tiles) gave local SNRs of 1e3-1e6. ``blank`` (bool (ny, nx), ``blank_tiles``):
-    tiles that take the scale of their nearest other tile instead of their own: a tile of
-    the strip a pan brings into view measures the few px of residual beside a constant
-    rest, and bilinear between tile centres its small scale multiplied the residual next
-    to the strip by up to 3 (per-frame false peaks along the strip's edge).
+    most tiles) gave local SNRs of 1e3-1e6.
     """
     frames = list(frames)
     if not frames:
@@ -193,9 +175,6 @@ def standardise(frames, tile: int = 32, floor: float = 0.0, blank=None) -> list:
     sc = median_mad_sigma(np.moveaxis(sub, 0, -2).reshape(*sub.shape[1:3], -1))[1]
     sc = np.maximum(sc, max(0.25 * float(np.median(sc)), float(floor),
                             float(np.finfo(np.float32).tiny)))
-    if blank is not None and blank.any() and not blank.all():
-        nearest = distance_transform_edt(blank, return_distances=False, return_indices=True)
-        sc = sc[nearest[0], nearest[1]]
     inv = tile_map(1.0 / sc, h, w)
     for f in frames:
         np.multiply(f, inv, out=f)

@@ -27,8 +27,7 @@ from irdetect.pipeline.fusion import (along_track, dilated_sum, registered_mean,
                                       track_values)
 from irdetect.pipeline.timing import lap
 from irdetect.suppress import suppress
-from irdetect.verify import (DP_LEADS, Evidence, blank_tiles, matched_frame, noise_level,
-                             standardise)
+from irdetect.verify import DP_LEADS, Evidence, matched_frame, noise_level, standardise
 
 
 def correlate_windows(triple, cc, params: "StageParams", timings: dict | None):
@@ -193,9 +192,7 @@ def front(block, previous, params: StageParams, timings: dict | None, following=
     if params.matched:
         # the residuals become the matched frames in place (no second window of frames)
         smooth = 0.0 if presmoothed else params.psf
-        blank = blank_tiles(residual)       # before matched_frame takes its median off
-        standardise([matched_frame(r, smooth, out=r) for r in residual], floor=params.floor,
-                    blank=blank)
+        standardise([matched_frame(r, smooth, out=r) for r in residual], floor=params.floor)
         matched = residual
     del residual
     t = lap(timings, "combine", t)
