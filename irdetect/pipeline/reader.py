@@ -46,7 +46,7 @@ class Reader:
         kind = np.dtype(frames.dtype)
         self.limits = ((np.iinfo(kind).min, np.iinfo(kind).max) if kind.kind in "iu"
                        else None)
-        frame_bytes = h * w * np.dtype(frames.dtype).itemsize
+        frame_bytes = h * w * kind.itemsize
         chunk = max(1, int(getattr(frames, "block_frames", 1)))
         self.block = max(length, min(chunk, max(1, self.MAX_BLOCK_BYTES // frame_bytes)))
         # the first window may also read ``ahead`` frames after it (it has no history)
