@@ -163,13 +163,22 @@ def normalise(frames: np.ndarray, gains: np.ndarray, limits=None) -> np.ndarray:
         is known only as a bound, and the bound moves with the gain: a bright edge
         saturated after a step up reads lower, taken back, than in the frames before it,
         and a background of those frames leaves it as a positive residual. The frames
-        are then clipped to the range every one of them can show, from
-        max_t (lo - O_t) / G_t to min_t (hi - O_t) / G_t, on which they agree.
+        are then clipped to the range on which they agree: from max_t (lo - O_t) / G_t
+        over the frames t that hold a pixel at ``lo`` to min_t (hi - O_t) / G_t over
+        those that hold one at ``hi``. A frame with no pixel at a limit shows every value
+        as it is and bounds nothing: clipping at its bound as well took a bright target
+        of easy3 (recorded gain steps to x0.59) down to the clouds beside it, under a
+        pan, where no frame before the steps had a pixel at 255.
     """
     g = gains[:, 0].astype(np.float32)[:, None, None]
     o = gains[:, 1].astype(np.float32)[:, None, None]
-    out = (np.asarray(frames, np.float32) - o) / g
+    raw = np.asarray(frames)
+    out = (raw.astype(np.float32) - o) / g
     if limits is not None:
         lo, hi = limits
-        np.clip(out, ((lo - o) / g).max(), ((hi - o) / g).min(), out=out)
+        low, high = ((lo - o) / g).ravel(), ((hi - o) / g).ravel()
+        at_lo = (raw == lo).any(axis=(1, 2))
+        at_hi = (raw == hi).any(axis=(1, 2))
+        np.clip(out, low[at_lo].max() if at_lo.any() else -np.inf,
+                high[at_hi].min() if at_hi.any() else np.inf, out=out)
     return out

@@ -152,6 +152,27 @@ def test_the_reader_clips_every_frame_to_the_range_all_of_them_can_show():
             < normalise(stepped[4:18], reader.gains[4:18])[7, 80:100, 100:120] - 4).all()
 
 
+def test_only_a_frame_with_a_pixel_at_the_limit_bounds_the_range():
+    # a step down to x0.6 (as easy3's recorded gain control takes): a target of raw 250
+    # after it is 350 grey levels on frame 0's scale, beyond what frame 0 could show, but
+    # no frame holds a pixel at 255, so nothing is a bound and nothing is clipped (the
+    # range every frame can show, 0-255, had taken it down to 255, to the clouds beside it)
+    rng = np.random.default_rng(6)
+    clean = _views(_scene(rng), [(8, 8)] * 24) + rng.normal(0, 1.0, (24, 200, 240))
+    stepped = clean.copy()
+    stepped[12:] = 0.6 * (clean[12:] - 100.0) + 100.0
+    stepped = np.clip(np.rint(stepped), 1, 254).astype(np.uint8)
+    stepped[12:, 60, 70] = 250
+    gains = np.tile([1.0, 0.0], (24, 1))
+    gains[12:] = 0.6, 40.0                 # raw = 0.6 value + 40 after the step
+    got = normalise(stepped, gains, (0, 255))
+    assert got[12:, 60, 70] == pytest.approx((250 - 40) / 0.6)
+    assert np.array_equal(got, normalise(stepped, gains))
+    # a frame before the step holding a pixel at 255 bounds every frame at 255
+    stepped[3, 10, 10] = 255
+    assert normalise(stepped, gains, (0, 255))[12:, 60, 70] == pytest.approx(255.0)
+
+
 @pytest.mark.parametrize("step", [0.3, -0.25])
 def test_a_gain_that_steps_every_18_frames_does_not_cost_the_targets(step):
     # dim targets (SNR 3) under clouds of 120 grey levels: each step leaves 30 grey levels
