@@ -84,7 +84,7 @@ import numpy as np
 
 from irdetect.combine import frames_needed, window_starts
 from irdetect.config import ProcessConfig, load_config
-from irdetect.metrics.detection import path_distance, roc, score_detections
+from irdetect.metrics.detection import PRESENCE, roc, score_detections
 from irdetect.metrics.initiation import score_track_paths
 from irdetect.pipeline import N_CORRELATE, detect_sequence, fit_config
 from irdetect.simulate.sequence import (camera_offsets, load_scenario, simulate_blocks,
@@ -120,8 +120,6 @@ N_TARGETS = (0, 8)
 MARGIN = 8.0
 #: the simulator refuses paths longer than 2 x the longer side; scenes are cut to 1.5 x
 REFUSED_SPAN, KEPT_SPAN = 2.0, 1.5
-#: a target-window counts when the target is inside in this share of the window's frames
-PRESENCE = 0.75
 #: camera motion below this (px/frame pan, px jitter) counts as none
 STILL = 0.1
 #: strata: (grouping, [(label, lower, upper)]) on a scene value, lower <= v < upper
@@ -298,7 +296,7 @@ def camera_error(estimate: np.ndarray, true: np.ndarray | None) -> float:
 
 def score_windows(detections: np.ndarray, truth: np.ndarray, *, n_frames: int, length: int,
                   step: int, shape: tuple[int, int], gate: float, tail: bool = False) -> dict:
-    """Detection counts with the presence rule, one window at a time.
+    """Detection counts with the presence rule (``score_detections``'s ``presence``).
 
     Parameters
     ----------
@@ -322,39 +320,13 @@ def score_windows(detections: np.ndarray, truth: np.ndarray, *, n_frames: int, l
         target-windows), ``detected``, ``false``, ``set_aside`` (detections near a
         target present in less than ``PRESENCE`` of the window's frames).
     """
-    starts = window_starts(n_frames, length=length, step=step, tail=tail)
-    out = {"windows": len(starts), "targets": 0, "detected": 0, "false": 0, "set_aside": 0}
+    r = score_detections(detections, truth, n_frames=n_frames, length=length, step=step,
+                         shape=shape, gate=gate, tail=tail, presence=PRESENCE)
     covered = np.zeros(n_frames, bool)
-    for k, s in enumerate(starts):
+    for s in window_starts(n_frames, length=length, step=step, tail=tail):
         covered[s:s + length] = True
-        dk = detections[detections["combined_frame"] == k].copy()
-        dk["combined_frame"] = 0
-        tk = truth[(truth["frame"] >= s) & (truth["frame"] < s + length)].copy()
-        tk["frame"] -= s
-        ids, counts = np.unique(tk["target"], return_counts=True)
-        full = ids[counts >= PRESENCE * length]
-        keep_truth = np.isin(tk["target"], full)
-        if len(dk) and (~keep_truth).any():
-            pts = np.column_stack([dk["x"], dk["y"]]).astype(float)
-
-            def near(targets):
-                hit = np.zeros(len(dk), bool)
-                for j in targets:                   # a loop over the few targets
-                    tj = tk[tk["target"] == j]
-                    tj = tj[np.argsort(tj["frame"])]
-                    hit |= path_distance(pts, np.column_stack([tj["x"], tj["y"]])) <= gate
-                return hit
-
-            aside = near(np.setdiff1d(ids, full)) & ~near(full)
-            out["set_aside"] += int(aside.sum())
-            dk = dk[~aside]
-        r = score_detections(dk, tk[keep_truth], n_frames=length, length=length,
-                             step=length, shape=shape, gate=gate)
-        out["targets"] += r["targets"]
-        out["detected"] += r["detected"]
-        out["false"] += r["false"]
-    out["frames"] = int(covered.sum())
-    return out
+    return {**{k: r[k] for k in ("windows", "targets", "detected", "false", "set_aside")},
+            "frames": int(covered.sum())}
 
 
 def score_tracks(tracks: np.ndarray, truth: np.ndarray, camera: np.ndarray, *, gate: float,

@@ -49,6 +49,28 @@ def test_one_to_one_matching_false_detections_and_pixel_fa():
     assert tight["detected"] == 1 and tight["false"] == 4
 
 
+def test_presence_rule_sets_aside_a_target_seen_in_part_of_its_window():
+    # target 0 inside in all 24 frames; target 1 enters at frame 16: 8 of window 1's 12
+    # frames (0.67), target 2 leaves after frame 2: 3 of window 0's 12
+    t0, t1, t2 = _truth(), _truth(), _truth()
+    t1["target"], t1["y"] = 1, 50.0
+    t2["target"], t2["y"] = 2, 80.0
+    truth = np.concatenate([t0, t1[t1["frame"] >= 16], t2[t2["frame"] < 3]])
+    dets = _dets([(15.0, 10.0, 0), (11.0, 80.0, 0),     # target 0; target 2 (3 frames)
+                  (30.0, 10.0, 1), (30.0, 50.0, 1),     # target 0; target 1 (8 frames)
+                  (60.0, 60.0, 1)])                     # nothing near: false
+    kw = dict(n_frames=24, length=12, step=12, shape=(100, 200))
+    every = score_detections(dets, truth, **kw)
+    assert (every["targets"], every["detected"], every["false"]) == (4, 4, 1)
+    ruled = score_detections(dets, truth, presence=0.75, **kw)
+    assert (ruled["targets"], ruled["detected"], ruled["false"]) == (2, 2, 1)
+    assert ruled["set_aside"] == 2 and every["set_aside"] == 0
+    # at 0.6 target 1 (0.67 of its window) counts again
+    assert score_detections(dets, truth, presence=0.6, **kw)["targets"] == 3
+    with pytest.raises(ValueError, match="presence"):
+        score_detections(dets, truth, presence=1.5, **kw)
+
+
 def test_no_detections_and_no_truth():
     m = score_detections(_dets([]), _truth(), n_frames=24, length=12, step=12, shape=(50, 50))
     assert m["pd"] == 0.0 and m["false"] == 0 and m["pixel_fa"] == 0.0

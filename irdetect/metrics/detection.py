@@ -15,6 +15,9 @@ from scipy.optimize import linear_sum_assignment
 from irdetect.combine import window_starts
 
 _FAR = 1e9
+#: the benchmarks' presence rule (``score_detections``'s ``presence``): a target counts
+#: in a window when it is inside the frame in three quarters of its frames
+PRESENCE = 0.75
 
 
 def path_distance(points: np.ndarray, path: np.ndarray) -> np.ndarray:
@@ -46,7 +49,8 @@ def path_distance(points: np.ndarray, path: np.ndarray) -> np.ndarray:
 
 def score_detections(detections: np.ndarray, truth: np.ndarray, *, n_frames: int,
                      length: int, step: int, shape: tuple[int, int],
-                     gate: float = 3.0, footprint: int = 3, tail: bool = False) -> dict:
+                     gate: float = 3.0, footprint: int = 3, tail: bool = False,
+                     presence: float = 0.0) -> dict:
     """Pd, false detections and pixel-level Fa of confirmed detections.
 
     Parameters
@@ -69,13 +73,22 @@ def score_detections(detections: np.ndarray, truth: np.ndarray, *, n_frames: int
         frames after them, the last window covers [n_frames - length, n_frames)
         (``irdetect.combine.window_starts``). Without it, detections of that window are
         not scored.
+    presence : float
+        The presence rule, in [0, 1]: a target counts in a window only when the truth
+        holds it (it is inside the frame) in at least this share of the window's
+        ``length`` frames; a detection within ``gate`` of the path of a target present
+        for less, and of no counted target, is set aside: neither detected nor false (a
+        target entering or leaving the view; ``irdetect process`` reports a detection at
+        its window's middle frame, inside the image). 0: every target in the truth
+        counts.
 
     Returns
     -------
     dict
-        ``windows``, ``targets`` (target-windows with truth), ``detected``, ``pd``,
+        ``windows``, ``targets`` (target-windows counted), ``detected``, ``pd``,
         ``detections``, ``false``, ``false_per_window``, ``false_per_mpx_window``,
-        ``pixel_fa``, ``mean_error_px`` (distance of matched detections to the path).
+        ``pixel_fa``, ``mean_error_px`` (distance of matched detections to the path),
+        ``set_aside`` (detections of targets present for less than ``presence``).
 
     Notes
     -----
@@ -90,26 +103,30 @@ def score_detections(detections: np.ndarray, truth: np.ndarray, *, n_frames: int
         raise ValueError(f"gate must be a positive number, got {gate!r}")
     if int(footprint) != footprint or footprint < 1 or footprint % 2 == 0:
         raise ValueError(f"footprint must be an odd integer >= 1, got {footprint!r}")
+    if not 0 <= presence <= 1:
+        raise ValueError(f"presence must lie in [0, 1], got {presence!r}")
     h, w = int(shape[0]), int(shape[1])
     starts = window_starts(int(n_frames), length=length, step=step, tail=tail)
     det = np.asarray(detections)
     tru = np.asarray(truth)
-    targets = detected = false = false_px = 0
+    targets = detected = false = false_px = set_aside = 0
     errors = []
     half = footprint // 2
     for k, s in enumerate(starts):
         dk = det[det["combined_frame"] == k]
         pts = np.column_stack([dk["x"], dk["y"]]).astype(float)
         tk = tru[(tru["frame"] >= s) & (tru["frame"] < s + length)]
-        ids = np.unique(tk["target"])
+        ids, counts = np.unique(tk["target"], return_counts=True)
+        cost = _path_distances(pts, tk, ids)
+        if presence > 0:
+            counted = counts >= presence * length
+            aside = ((cost[~counted] <= gate).any(axis=0)
+                     & ~(cost[counted] <= gate).any(axis=0))
+            set_aside += int(aside.sum())
+            dk, pts, cost, ids = dk[~aside], pts[~aside], cost[counted][:, ~aside], ids[counted]
         targets += len(ids)
         matched = np.zeros(len(dk), bool)
         if len(ids) and len(dk):
-            cost = np.empty((len(ids), len(dk)))
-            for i, j in enumerate(ids):           # a loop over the few targets
-                tj = tk[tk["target"] == j]
-                tj = tj[np.argsort(tj["frame"])]
-                cost[i] = path_distance(pts, np.column_stack([tj["x"], tj["y"]]))
             gated = np.where(cost <= gate, cost, _FAR)
             rows, cols = linear_sum_assignment(gated)
             ok = gated[rows, cols] < _FAR
@@ -139,7 +156,19 @@ def score_detections(detections: np.ndarray, truth: np.ndarray, *, n_frames: int
         "pixel_fa": false_px / (n_win * h * w) if n_win else float("nan"),
         "mean_error_px": float(np.mean(errors)) if errors else float("nan"),
         "gate": float(gate),
+        "set_aside": set_aside,
     }
+
+
+def _path_distances(points: np.ndarray, truth: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """(len(ids), len(points)): each point's distance to the path of each target of
+    ``ids`` through its ``truth`` rows in time order (``path_distance``)."""
+    cost = np.empty((len(ids), len(points)))
+    for i, j in enumerate(ids):           # a loop over the few targets
+        tj = truth[truth["target"] == j]
+        tj = tj[np.argsort(tj["frame"])]
+        cost[i] = path_distance(points, np.column_stack([tj["x"], tj["y"]]))
+    return cost
 
 
 #: the false-detection rate per frame up to which ``roc`` integrates its area (the
