@@ -69,6 +69,12 @@ def test_presence_rule_sets_aside_a_target_seen_in_part_of_its_window():
     assert score_detections(dets, truth, presence=0.6, **kw)["targets"] == 3
     with pytest.raises(ValueError, match="presence"):
         score_detections(dets, truth, presence=1.5, **kw)
+    # rows of the truth outside the frame are not presence: target 2 given in all 12
+    # frames of window 0, but out of view (x < 0) in 6 of them, is still set aside
+    t2 = _truth()[:12]
+    t2["target"], t2["y"], t2["x"] = 2, 80.0, 2.0 * t2["frame"] - 11.0
+    out = np.concatenate([t0, t1[t1["frame"] >= 16], t2])
+    assert score_detections(dets, out, presence=0.75, **kw)["set_aside"] == 2
 
 
 def test_no_detections_and_no_truth():
@@ -102,6 +108,12 @@ def test_cli_process_then_evaluate(cli, tmp_path):
     assert scores["roc"]["pd"][-1] == scores["pd"] and 0 < scores["roc_auc"] <= 1
     code, out, _ = cli("evaluate", "res.h5")            # truth from the results' input
     assert code == 0 and "pd" in out and "false_per_mpx_window" in out
+    # the presence rule: both targets stay inside, so the same counts, none set aside
+    code, out, _ = cli("evaluate", "res.h5", "--presence", "0.75", "--json")
+    ruled = json.loads(out)["detection"]
+    assert code == 0 and ruled["set_aside"] == 0
+    assert {k: ruled[k] for k in ("targets", "detected", "false")} == {
+        k: scores[k] for k in ("targets", "detected", "false")}
     # point annotations (x y per frame) are accepted as truth too
     lines = "\n".join(f"{x} {y}" for x, y in truth[truth["target"] == 0][["x", "y"]].tolist())
     (tmp_path / "truth.txt").write_text(lines + "\n")
@@ -121,6 +133,8 @@ def test_cli_evaluate_bad_input(cli, tmp_path):
     assert code == 2 and "not found" in err
     code, _, err = cli("evaluate", "res.h5", "--truth", "notruth.h5", "--gate", "-1")
     assert code == 2 and "--gate" in err
+    code, _, err = cli("evaluate", "res.h5", "--truth", "notruth.h5", "--presence", "1.5")
+    assert code == 2 and "--presence" in err and "Traceback" not in err
 
 
 def test_the_table_gives_the_roc_at_a_few_false_alarm_rates():

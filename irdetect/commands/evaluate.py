@@ -6,7 +6,9 @@ table it holds:
 
   detection         Pd per window (a detection within --gate px of the true path, one
                     to one), false detections per window and per megapixel-window,
-                    pixel-level false-alarm rate (3x3 px per false detection)
+                    pixel-level false-alarm rate (3x3 px per false detection); with
+                    --presence, a target inside the frame in fewer of a window's frames
+                    does not count there, and its detections are set aside
   track initiation  Pt per target and overall, Pc (share of false tracks), speed error;
                     pt_path: a track within 2 x --gate px of its target in 80 % of its
                     frames, and false_path_tracks: the ids of the tracks false by it;
@@ -46,6 +48,11 @@ def add_arguments(p):
                    "or its recording folder's truth.txt)")
     p.add_argument("--gate", type=float, default=3.0,
                    help="match distance in px between a detection and the true path (3)")
+    p.add_argument("--presence", type=float, default=0.0, metavar="SHARE",
+                   help="a target counts in a window only when it is inside the frame in "
+                   "this share of the window's frames, and a detection of one inside for "
+                   "less is set aside, neither detected nor false (0: every target, the "
+                   "default; the benchmarks use 0.75)")
     p.add_argument("--json", action="store_true", help="print the scores as JSON")
     p.add_argument("--irstd", action="store_true",
                    help="also Pd and Fa as the IRSTD field computes them from masks "
@@ -60,7 +67,7 @@ def _detection_section(results, truth, ctx) -> dict:
     det = results["detections"]
     kw = dict(n_frames=ctx["n_frames"], length=ctx["length"], step=ctx["step"],
               shape=ctx["shape"], gate=ctx["gate"], tail=ctx["tail"])
-    out = score_detections(det, truth, **kw)
+    out = score_detections(det, truth, presence=ctx["presence"], **kw)
     out["false_per_frame"] = out["false"] / ctx["n_frames"]
     if "snr" in det.dtype.names:          # results of irdetect 0.x before the per-frame path
         curve = roc(det, truth, **kw)
@@ -79,7 +86,7 @@ def _mot_section(results, truth, ctx) -> dict:
 #: Sections run in order, each when its table is in the results file (add new scores
 #: here, and their meaning to LEGEND):
 #: ``(title, table name, function(results, truth, context) -> dict of scores)``; the
-#: context holds n_frames, length, step, tail, shape (H, W), gate, frame_rate.
+#: context holds n_frames, length, step, tail, shape (H, W), gate, frame_rate, presence.
 def _initiation_section(results, truth, ctx) -> dict:
     """Pt per target and overall, Pc and velocity error of /tracks (irdetect process;
     the frame-by-frame tracker's /tracks, beside /track_points, are scored by CLEAR-MOT)."""
@@ -98,9 +105,10 @@ SECTIONS: list[tuple[str, str, callable]] = [
 
 
 def evaluate(results_path, truth_path=None, *, gate: float = 3.0,
-             irstd: bool = False) -> dict:
+             irstd: bool = False, presence: float = 0.0) -> dict:
     """Scores of a results file: ``{section: {metric: value}}``; ``irstd`` adds the
-    section of ``irdetect.metrics.irstd`` (IRSTD Pd / Fa).
+    section of ``irdetect.metrics.irstd`` (IRSTD Pd / Fa); ``presence``: the detection
+    section's presence rule (``irdetect.metrics.detection.score_detections``).
 
     Raises
     ------
@@ -110,6 +118,8 @@ def evaluate(results_path, truth_path=None, *, gate: float = 3.0,
     """
     if not math.isfinite(gate) or gate <= 0:
         raise InputError(f"--gate must be a positive number, got {gate}")
+    if not 0 <= presence <= 1:
+        raise InputError(f"--presence must lie in [0, 1], got {presence}")
     results = read_results(results_path)
     from irdetect.metrics.initiation import evaluate_scan_results, scan_tracks_of
     if scan_tracks_of(results, warn=False) is not None:     # initiate on scans: scans truth
@@ -129,7 +139,8 @@ def evaluate(results_path, truth_path=None, *, gate: float = 3.0,
         raise InputError("results file does not say the frame size (attrs frame_height, "
                          "frame_width, n_frames) and --truth is not a sequence", results_path)
     ctx = {"n_frames": n_frames, "length": length, "step": step, "tail": tail, "shape": shape,
-           "gate": float(gate), "frame_rate": attrs.get("frame_rate")}
+           "gate": float(gate), "frame_rate": attrs.get("frame_rate"),
+           "presence": float(presence)}
     out = {}
     for title, table, function in SECTIONS:
         if table in results:
@@ -168,6 +179,8 @@ LEGEND = {
     "pd": "pd = detected / target-windows",
     "roc_auc": "roc_auc = area under pd vs false/frame (0-0.1) over snr thresholds / 0.1",
     "false": "false = detections near no target",
+    "set_aside": "set_aside = detections of a target inside the frame in under --presence "
+                 "of its window's frames (neither detected nor false)",
     "pixel_fa": "pixel_fa = false-alarm pixels / all pixels (3x3 px per false detection)",
     "pt_overall": "pt = targets with a track / targets, by the paper's line rule (every "
                   "true position within 3 x initiate.sigma, 4.5 px by default, of the "
@@ -240,7 +253,8 @@ def _number(value) -> str:
 
 
 def run(args) -> int:
-    scores = evaluate(args.results, args.truth, gate=args.gate, irstd=args.irstd)
+    scores = evaluate(args.results, args.truth, gate=args.gate, irstd=args.irstd,
+                      presence=args.presence)
     if args.json:
         print(json.dumps(_no_nan(scores), indent=2, default=_plain))
     else:

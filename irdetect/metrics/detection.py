@@ -74,13 +74,13 @@ def score_detections(detections: np.ndarray, truth: np.ndarray, *, n_frames: int
         (``irdetect.combine.window_starts``). Without it, detections of that window are
         not scored.
     presence : float
-        The presence rule, in [0, 1]: a target counts in a window only when the truth
-        holds it (it is inside the frame) in at least this share of the window's
-        ``length`` frames; a detection within ``gate`` of the path of a target present
-        for less, and of no counted target, is set aside: neither detected nor false (a
-        target entering or leaving the view; ``irdetect process`` reports a detection at
-        its window's middle frame, inside the image). 0: every target in the truth
-        counts.
+        The presence rule, in [0, 1]: a target counts in a window only when it is inside
+        the frame (0 <= x <= W - 1, 0 <= y <= H - 1) in at least this share of the
+        window's ``length`` frames; a detection within ``gate`` of the path of a target
+        inside for less, and of no counted target, is set aside: neither detected nor
+        false (a target entering or leaving the view; ``irdetect process`` reports a
+        detection at its window's middle frame, inside the image). 0: every target in
+        the truth counts.
 
     Returns
     -------
@@ -116,10 +116,13 @@ def score_detections(detections: np.ndarray, truth: np.ndarray, *, n_frames: int
         dk = det[det["combined_frame"] == k]
         pts = np.column_stack([dk["x"], dk["y"]]).astype(float)
         tk = tru[(tru["frame"] >= s) & (tru["frame"] < s + length)]
-        ids, counts = np.unique(tk["target"], return_counts=True)
+        ids = np.unique(tk["target"])
         cost = _path_distances(pts, tk, ids)
         if presence > 0:
-            counted = counts >= presence * length
+            inside = (tk["x"] >= 0) & (tk["x"] <= w - 1) & (tk["y"] >= 0) & (tk["y"] <= h - 1)
+            shown = np.bincount(np.searchsorted(ids, tk["target"][inside]),
+                                minlength=len(ids))
+            counted = shown >= presence * length
             aside = ((cost[~counted] <= gate).any(axis=0)
                      & ~(cost[counted] <= gate).any(axis=0))
             set_aside += int(aside.sum())
