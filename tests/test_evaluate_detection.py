@@ -7,7 +7,7 @@ import pytest
 
 from irdetect import tables
 from irdetect.io import write_sequence
-from irdetect.metrics.detection import path_distance, score_detections
+from irdetect.metrics.detection import path_distance, roc, score_detections
 from irdetect.pipeline import detect_sequence
 from irdetect.simulate import simulate
 
@@ -65,6 +65,9 @@ def test_presence_rule_sets_aside_a_target_seen_in_part_of_its_window():
     ruled = score_detections(dets, truth, presence=0.75, **kw)
     assert (ruled["targets"], ruled["detected"], ruled["false"]) == (2, 2, 1)
     assert ruled["set_aside"] == 2 and every["set_aside"] == 0
+    # the ROC follows the rule: with every detection, the same Pd and false detections
+    curve = roc(dets, truth, presence=0.75, **kw)
+    assert curve["pd"][-1] == ruled["pd"] and curve["false_per_frame"][-1] == 1 / 24
     # at 0.6 target 1 (0.67 of its window) counts again
     assert score_detections(dets, truth, presence=0.6, **kw)["targets"] == 3
     with pytest.raises(ValueError, match="presence"):
@@ -111,7 +114,7 @@ def test_cli_process_then_evaluate(cli, tmp_path):
     # the presence rule: both targets stay inside, so the same counts, none set aside
     code, out, _ = cli("evaluate", "res.h5", "--presence", "0.75", "--json")
     ruled = json.loads(out)["detection"]
-    assert code == 0 and ruled["set_aside"] == 0
+    assert code == 0 and ruled["set_aside"] == 0 and ruled["roc"]["pd"][-1] == ruled["pd"]
     assert {k: ruled[k] for k in ("targets", "detected", "false")} == {
         k: scores[k] for k in ("targets", "detected", "false")}
     # point annotations (x y per frame) are accepted as truth too

@@ -66,8 +66,8 @@ def _detection_section(results, truth, ctx) -> dict:
 
     det = results["detections"]
     kw = dict(n_frames=ctx["n_frames"], length=ctx["length"], step=ctx["step"],
-              shape=ctx["shape"], gate=ctx["gate"], tail=ctx["tail"])
-    out = score_detections(det, truth, presence=ctx["presence"], **kw)
+              shape=ctx["shape"], gate=ctx["gate"], tail=ctx["tail"], presence=ctx["presence"])
+    out = score_detections(det, truth, **kw)
     out["false_per_frame"] = out["false"] / ctx["n_frames"]
     if "snr" in det.dtype.names:          # results of irdetect 0.x before the per-frame path
         curve = roc(det, truth, **kw)

@@ -183,12 +183,13 @@ ROC_POINTS = 40
 
 def roc(detections: np.ndarray, truth: np.ndarray, *, n_frames: int, length: int, step: int,
         shape: tuple[int, int], gate: float = 3.0, score: str = "snr",
-        false_max: float = ROC_FALSE_MAX, tail: bool = False) -> dict:
+        false_max: float = ROC_FALSE_MAX, tail: bool = False,
+        presence: float = 0.0) -> dict:
     """Pd and false detections per frame of the detections at or above a sweep of scores.
 
     Parameters
     ----------
-    detections, truth, n_frames, length, step, shape, gate, tail
+    detections, truth, n_frames, length, step, shape, gate, tail, presence
         As ``score_detections``.
     score : str
         The field ranked (``snr``: the local SNR both paths share; ``score``).
@@ -216,7 +217,7 @@ def roc(detections: np.ndarray, truth: np.ndarray, *, n_frames: int, length: int
     pd, fpf = [], []
     for t in thresholds:                  # a loop over a few dozen thresholds
         m = score_detections(det[s >= t], truth, n_frames=n_frames, length=length, step=step,
-                             shape=shape, gate=gate, tail=tail)
+                             shape=shape, gate=gate, tail=tail, presence=presence)
         pd.append(m["pd"])
         fpf.append(m["false"] / n_frames)
     pd, fpf = np.array(pd), np.array(fpf)
