@@ -65,9 +65,11 @@ def test_presence_rule_sets_aside_a_target_seen_in_part_of_its_window():
     ruled = score_detections(dets, truth, presence=0.75, **kw)
     assert (ruled["targets"], ruled["detected"], ruled["false"]) == (2, 2, 1)
     assert ruled["set_aside"] == 2 and every["set_aside"] == 0
-    # the ROC follows the rule: with every detection, the same Pd and false detections
-    curve = roc(dets, truth, presence=0.75, **kw)
-    assert curve["pd"][-1] == ruled["pd"] and curve["false_per_frame"][-1] == 1 / 24
+    # the ROC follows the rule: target 1 (8 frames) missed is no missed target-window
+    missed = dets[[0, 1, 2, 4]]
+    assert score_detections(missed, truth, **kw)["pd"] == 0.75
+    curve = roc(missed, truth, presence=0.75, **kw)
+    assert curve["pd"][-1] == 1.0 and curve["false_per_frame"][-1] == 1 / 24
     # at 0.6 target 1 (0.67 of its window) counts again
     assert score_detections(dets, truth, presence=0.6, **kw)["targets"] == 3
     with pytest.raises(ValueError, match="presence"):
