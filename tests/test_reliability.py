@@ -560,3 +560,27 @@ def test_initiate_refuses_a_window_of_a_million_points(work, run):
     t = time.perf_counter()
     run("initiate", "dense.h5", "-o", "t.h5", want=(2,), names="measurements")
     assert time.perf_counter() - t < 60 and not (work / "t.h5").exists()
+
+
+def test_a_dead_runs_leftovers_beside_a_committed_output_are_removed(work, run, capsys):
+    """A run killed after its commit (output in place) but before it removed its lock and
+    temporary: the next run refuses the output (exit 2) and clears them, unless a live
+    run holds the lock."""
+    import fcntl
+
+    from irdetect.cli import main
+
+    run("convert", "seq.h5", "-o", "out.h5", "-q", want=(0,))
+    lock, tmp = work / ".out.h5.irdetect-lock", work / ".out.h5.irdetect-k1ll.tmp"
+    for live in (True, False):
+        lock.write_bytes(b"")
+        tmp.write_bytes(b"partial")
+        fd = os.open(lock, os.O_RDWR)
+        if live:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        try:
+            assert main(["convert", "seq.h5", "-o", "out.h5", "-q"]) == 2
+        finally:
+            os.close(fd)
+        assert "output exists" in capsys.readouterr().err
+        assert _hidden(work) == (sorted([lock.name, tmp.name]) if live else [])

@@ -135,8 +135,21 @@ def check_output_path(path: str | os.PathLike, force: bool = False,
     if path.exists() and not stat.S_ISREG(os.stat(path).st_mode):
         raise InputError("output path exists and is not a regular file", path)
     if path.exists() and not force:
+        _clear_dead_run(path)
         raise InputError("output exists; use --force to overwrite it", path)
     return path
+
+
+def _clear_dead_run(path: Path) -> None:
+    """Remove a dead run's lock and temporaries beside ``path`` when no run holds the
+    lock: a run killed with SIGKILL after it committed its output, before it removed
+    them, left them (``kill -9`` at random moments, tests/test_kill9.py), and the next run
+    refuses the output before it would take the lock."""
+    try:
+        with OutputLock(path):
+            pass
+    except InputError:              # a live run holds it, or the folder is not writable
+        pass
 
 
 class OutputLock:
