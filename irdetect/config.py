@@ -53,6 +53,11 @@ class SuppressConfig:
     #: is a step of the camera's gain control, and the frames after it are taken back
     #: to frame 0's gain and level before suppression (``irdetect.gain``); 0: off
     gain_step: float = STEP
+    #: pixels per side of the blocks each frame is averaged over before everything else
+    #: (``irdetect.binning``): footage sampled finer than its detail (an analog video
+    #: digitised at twice its sensor's resolution) takes 2; results stay in the input's
+    #: pixels. 1: none
+    bin: int = 1
 
 
 @dataclass(frozen=True)

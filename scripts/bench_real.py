@@ -54,8 +54,8 @@ and 6 px/frame more, the regime of real panning clips none of whose settings wer
 Section 6 (added noise) runs the defaults on each sequence with white noise added
 (``noisy``): the same scenes from a noisier sensor.
 Section 7 (transformed) runs the defaults on each sequence mirrored, reversed in time, at
-half the frame rate and at half the size (``transformed``): recordings of the same scenes
-that no setting was chosen on.
+half the frame rate, at half the size and at twice the size (``transformed``): recordings
+of the same scenes that no setting was chosen on; the last also with ``--bin 2``.
 Section 8 (compressed) runs the defaults on each sequence as a lossy file delivers it
 (``compressed``): every frame a JPEG of quality 75, an MPEG-4 video and an H.264 video
 (the last with imageio-ffmpeg installed, ``pip install imageio-ffmpeg``: not an irdetect
@@ -257,6 +257,8 @@ def run_clips(data: dict, cfg: ProcessConfig, keys, clip_of, label, config_of=No
 
 #: section 7: each sequence as another recording of it would give it (``transformed``)
 TRANSFORMS = ("mirrored", "reversed", "every 2nd frame", "half size")
+#: section 7 too: oversampled (``transformed``), with the defaults and with ``--bin 2``
+DOUBLED = ("double size", "double size, --bin 2")
 
 
 def transformed(frames, truth, kind: str, gate: float):
@@ -265,7 +267,10 @@ def transformed(frames, truth, kind: str, gate: float):
     other way); ``every 2nd frame`` (a sensor at half the frame rate: twice the speeds in
     px/frame); ``half size`` (each side halved by area averaging, ``cv2.INTER_AREA``: a
     sensor of half the resolution, the targets smaller and dimmer against their pixel;
-    the gate halved, not below 3 px). x = column, y = row."""
+    the gate halved, not below 3 px); ``double size`` (each side doubled by cubic
+    interpolation, ``cv2.INTER_CUBIC``: footage sampled twice as finely as its detail, an
+    analog video digitised at twice its sensor's resolution; the speeds and the gate
+    doubled). x = column, y = row."""
     n, h, w = frames.shape
     t = truth.copy()
     if kind == "mirrored":
@@ -280,6 +285,11 @@ def transformed(frames, truth, kind: str, gate: float):
                                      interpolation=cv2.INTER_AREA) for f in frames])
         t["x"], t["y"] = (t["x"] + 0.5) / 2 - 0.5, (t["y"] + 0.5) / 2 - 0.5
         return small, t, max(3.0, gate / 2)
+    if kind.startswith("double size"):
+        big = np.stack([cv2.resize(np.asarray(f), (2 * w, 2 * h),
+                                   interpolation=cv2.INTER_CUBIC) for f in frames])
+        t["x"], t["y"] = 2 * t["x"] + 0.5, 2 * t["y"] + 0.5
+        return big, t, 2 * gate
     raise ValueError(f"unknown transform {kind!r}")
 
 
@@ -433,9 +443,14 @@ def run_agc(data: dict, cfg: ProcessConfig) -> list:
 
 
 def run_transformed(data: dict, cfg: ProcessConfig) -> list:
-    """Section 7: (name, kind, irdetect's row) for every sequence and TRANSFORMS."""
-    return run_clips(data, cfg, TRANSFORMS,
-                     lambda name, f, t, k: transformed(f, t, k, gate_of(name)), str)
+    """Section 7: (name, kind, irdetect's row) for every sequence and TRANSFORMS + DOUBLED
+    (the last with ``suppress.bin`` 2)."""
+    def config_of(base, kind, clip):
+        return with_changes(base, {"suppress": {"bin": 2}}) if "bin" in kind else base
+
+    return run_clips(data, cfg, TRANSFORMS + DOUBLED,
+                     lambda name, f, t, k: transformed(f, t, k, gate_of(name)), str,
+                     config_of)
 
 
 def gate_of(name: str) -> float:
@@ -1148,7 +1163,18 @@ def write_report(path: Path, rows, have_trackpy: bool, total: float, variants=()
             "clips. Goal as in section 1.",
             "",
         ]
-        lines += _by_column(transforms, TRANSFORMS, str)
+        lines += _by_column([r for r in transforms if r[1] in TRANSFORMS], TRANSFORMS, str)
+        lines += [
+            "",
+            "Each sequence at twice the size by cubic interpolation: footage sampled twice "
+            "as finely as its detail (an analog video digitised at twice its sensor's "
+            "resolution), its hot pixels, targets and clutter twice as wide, its speeds "
+            "doubled, the gate doubled; with the defaults, and with `--bin 2` "
+            "(`suppress.bin`, irdetect's remedy for such footage: each 2 x 2 block averaged "
+            "into one pixel before the run, the results in the input's pixels).",
+            "",
+        ]
+        lines += _by_column([r for r in transforms if r[1] in DOUBLED], DOUBLED, str)
     if codecs:
         lines += [
             "",

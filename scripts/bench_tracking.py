@@ -22,7 +22,7 @@ each (the frames' largest strip at least CROP_MARGIN px from the target's whole 
 the false tracks per 1,000 frames; each is also tracked under an added pan (bench_real's
 ``pan_clips``, the clips of its section 5), with added noise (its ``noisy``, section 6)
 transformed (its ``transformed``, section 7: mirrored, reversed, every 2nd frame, half
-size) and compressed (its ``compressed``, section 8: JPEG frames, MPEG-4 video).
+size, double size with the defaults and with ``suppress.bin`` 2) and compressed (its ``compressed``, section 8: JPEG frames, MPEG-4 video).
 Runs go through irdetect.batch.map_tasks, so a many-seed study spreads over local processes
 (--jobs) or a Dask cluster (--scheduler) with one option; frames/s are per run either way.
 """
@@ -42,7 +42,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench_real import (CODECS, NOISE_LEVELS, PAN_SPEEDS, TRANSFORMS,  # noqa: E402  (scripts/)
+from bench_real import (CODECS, DOUBLED, NOISE_LEVELS, PAN_SPEEDS, TRANSFORMS,  # noqa: E402
                         compressed, noisy, pan_clips, transformed)
 from irdetect import __version__  # noqa: E402
 from irdetect.batch import map_tasks  # noqa: E402
@@ -359,16 +359,18 @@ def _gate(name: str) -> float:
     return 5.0 if name.startswith("easy") else 3.0
 
 
-def _columns(data: dict, keys, clip_of) -> tuple[list[str], dict]:
+def _columns(data: dict, keys, clip_of, params_of=None) -> tuple[list[str], dict]:
     """The defaults on every folder of ``data`` (name -> (frames, truth)) as ``clip_of(name,
     frames, truth, key)`` -> (frames, truth, gate) gives it for each of ``keys``: table rows
-    of MOTA / IDF1 / tracks / at the goal per key, and the folders at the goal per key."""
+    of MOTA / IDF1 / tracks / at the goal per key, and the folders at the goal per key
+    (``params_of(key)``, when given: ``track``'s keywords for that key)."""
     rows, goal = [], {k: 0 for k in keys}
     for name, (frames, truth) in data.items():
         cells = []
         for k in keys:
             clip, moved, gate = clip_of(name, frames, truth, k)
-            r = _run(np.ascontiguousarray(clip), moved, gate)
+            r = _run(np.ascontiguousarray(clip), moved, gate,
+                     **(params_of(k) if params_of else {}))
             goal[k] += _at_goal(r)
             cells.append(f"{r['mota']:.3f} / {r['idf1']:.3f} / {r['n_tracks_out']} / "
                          f"{'yes' if _at_goal(r) else 'no'}")
@@ -438,7 +440,8 @@ def _real():
     noise_rows, noise_goal = _columns(
         data, NOISE_LEVELS, lambda name, f, t, v: (noisy(f, v), t, _gate(name)))
     xf_rows, xf_goal = _columns(
-        data, TRANSFORMS, lambda name, f, t, k: transformed(f, t, k, _gate(name)))
+        data, TRANSFORMS + DOUBLED, lambda name, f, t, k: transformed(f, t, k, _gate(name)),
+        lambda k: {"suppression": {"bin": 2}} if "bin" in k else {})
     codec_rows, codec_goal = _columns(
         data, CODECS, lambda name, f, t, k: compressed(f, t, k, _gate(name)))
     n_frames = sum(c[2] for c in crops)
@@ -539,13 +542,15 @@ chosen on them. At the goal: {", ".join(f"{noise_goal[v]} of {len(noise_rows)} (
 
 ### The folders transformed
 
-The real folders {", ".join(TRANSFORMS)} (`bench_real.transformed`: the clips of section 7
-of docs/results/real.md; at half the size the gate is 3 px), tracked with the defaults;
+The real folders {", ".join(TRANSFORMS + DOUBLED)} (`bench_real.transformed`: the clips of
+section 7 of docs/results/real.md; at half the size the gate is 3 px, at double the size
+twice the folder's; double size by cubic interpolation is footage sampled twice as finely
+as its detail, which `--bin 2` (`suppress.bin`) averages back), tracked with the defaults;
 none of the tracker's settings was chosen on them. At the goal: {", ".join(
-    f"{xf_goal[k]} of {len(xf_rows)} ({k})" for k in TRANSFORMS)}.
+    f"{xf_goal[k]} of {len(xf_rows)} ({k})" for k in TRANSFORMS + DOUBLED)}.
 
-| folder | {" | ".join(f"{k}: MOTA / IDF1 / tracks / at the goal" for k in TRANSFORMS)} |
-|---|{"---|" * len(TRANSFORMS)}
+| folder | {" | ".join(f"{k}: MOTA / IDF1 / tracks / at the goal" for k in TRANSFORMS + DOUBLED)} |
+|---|{"---|" * len(TRANSFORMS + DOUBLED)}
 {chr(10).join(xf_rows)}
 
 ### The folders compressed

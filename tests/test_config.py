@@ -27,6 +27,7 @@ def test_stage_config_mirrors_keyword_parameters(cls, function):
     fields = {f.name: f.default for f in dataclasses.fields(cls)}
     fields.pop("long_memory", None)      # the pipeline's: which frames it passes as long_past
     fields.pop("gain_step", None)        # the reader's: it undoes the gain control
+    fields.pop("bin", None)              # the driver's: it bins the frames it reads
     assert fields == keywords
 
 

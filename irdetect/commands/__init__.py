@@ -14,8 +14,9 @@ TRUTH_KINDS = ("a sequence with /truth, a text file of 'x y' per frame, a record
 
 
 def add_input_options(p) -> None:
-    """``--polarity`` and ``--exclude``: what the targets look like and where nothing is
-    reported, shared by ``process`` and ``track`` (``with_input_options``)."""
+    """``--polarity``, ``--exclude`` and ``--bin``: what the targets look like, where
+    nothing is reported and the footage's pixel scale, shared by ``process`` and
+    ``track`` (``with_input_options``)."""
     p.add_argument("--polarity", choices=["bright", "dark"],
                    help="bright: targets brighter than their background (a white-hot "
                    "recording, the default); dark: darker (a black-hot recording, a cold "
@@ -25,14 +26,20 @@ def add_input_options(p) -> None:
                    "reticle): a rectangle in px (x = column; columns X0..X1-1, rows "
                    "Y0..Y1-1) or an image of the frames' size whose nonzero pixels are "
                    "excluded; repeatable, added to the configuration's exclude")
+    p.add_argument("--bin", type=int, metavar="N",
+                   help="average blocks of N x N pixels into one before everything else, "
+                   "for footage sampled finer than its detail (an analog video digitised at "
+                   "twice its sensor's resolution: hot pixels and point targets 2 px wide): "
+                   "2; results stay in the input's pixels; sets suppress.bin (default 1)")
 
 
 def with_input_options(config, args):
-    """``config`` with ``--polarity`` (``suppress.polarity``) and ``--exclude`` (added to
-    ``exclude``) of ``args`` applied."""
-    if args.polarity is not None:
-        config = dataclasses.replace(config, suppress=dataclasses.replace(
-            config.suppress, polarity=args.polarity))
+    """``config`` with ``--polarity`` (``suppress.polarity``), ``--bin``
+    (``suppress.bin``) and ``--exclude`` (added to ``exclude``) of ``args`` applied."""
+    for name in ("polarity", "bin"):
+        if getattr(args, name) is not None:
+            config = dataclasses.replace(config, suppress=dataclasses.replace(
+                config.suppress, **{name: getattr(args, name)}))
     if args.exclude:
         config = dataclasses.replace(config, exclude=tuple(config.exclude) + tuple(args.exclude))
     return config

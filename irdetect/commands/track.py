@@ -78,7 +78,7 @@ def run(args) -> int:
         track(np.zeros((3, 32, 32), np.float32), lambda rows: None, False,
               dataclasses.asdict(config.suppress), **params)
     with open_sequence(args.input, dataset=args.dataset) as source:
-        check_size(source.shape, args.input)
+        check_size(source.shape, args.input, config.suppress.bin)
         if len(source) < config.track.confirm_hits:
             raise InputError(f"the sequence has {len(source)} frame"
                              f"{'' if len(source) == 1 else 's'}; a track is confirmed after "

@@ -26,6 +26,7 @@ from typing import Iterator
 import numpy as np
 
 from irdetect import kernels, tables
+from irdetect.binning import MAX_BIN, Binned, binned_mask, check_bin, to_input
 from irdetect.combine import frames_needed, window_starts
 from irdetect.config import ProcessConfig, to_json
 from irdetect.errors import InputError, refused_settings
@@ -173,8 +174,12 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
     starts = window_starts(n_frames, length=cc.length, step=cc.step, tail=cc.tail)
     regular = len(window_starts(n_frames, length=cc.length, step=cc.step))
     params = StageParams(config)
-    params.exclude = exclusion_mask(config.exclude, shape[1:])
-    params.floor = quantisation_floor(frames[0:1][0], params.psf) if n_frames else 0.0
+    params.exclude = binned_mask(exclusion_mask(config.exclude, shape[1:]), params.bin)
+    # integer frames' quantisation, which a block's mean divides by the block's side
+    params.floor = (quantisation_floor(frames[0:1][0], params.psf) / params.bin
+                    if n_frames else 0.0)
+    if params.bin > 1:
+        frames = Binned(frames, params.bin)
     # the first window(s) look ahead: their first frames have no past (``lead_in``)
     ahead = [future_frames(start=int(s), stop=int(s) + cc.length, **params.suppress)
              for s in starts]
@@ -272,6 +277,10 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
         camera_done = end
         return chunk
 
+    def unbinned(chunk: dict) -> dict:
+        """The chunk in the input's pixels (``irdetect.binning``)."""
+        return {name: to_input(name, rows, params.bin) for name, rows in chunk.items()}
+
     try:
         submitted = 0
         for k, s in enumerate(starts):
@@ -299,16 +308,16 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
                 else:
                     corrs.append(pool.submit(correlate_windows, triple, cc, params, timings))
             while len(corrs) > (0 if pool is None else workers):
-                yield take()
+                yield unbinned(take())
             if bar is not None:
                 bar.update(int(min(starts[k + 1] if k + 1 < len(starts) else n_frames,
                                    n_frames) - bar.n))
         while corrs:
-            yield take()
+            yield unbinned(take())
         while pending:
             done = pending.popleft()
-            yield with_camera(emit(done, tables.empty(tables.SEGMENT)),
-                              done.start + cc.length, done.peaks)
+            yield unbinned(with_camera(emit(done, tables.empty(tables.SEGMENT)),
+                                       done.start + cc.length, done.peaks))
         if steps := reader.gain_steps():
             log.info(steps)
     finally:
@@ -391,17 +400,21 @@ def check_config(config: ProcessConfig, path=None, frame_shape=(32, 32)) -> None
         frame_start=[0, 0, 36, 36], frame_end=[11, 11, 47, 47], combined_frame=[0, 0, 3, 3])
     read_exclusions(config.exclude)         # the frames' size: as the run starts
     with refused_settings(path):
-        detect_sequence(np.zeros((min_frames(config), 32, 32), np.float32),
+        # 32 x 32 px once binned (a bin out of range is refused by the run)
+        side = 32 * min(max(1, int(config.suppress.bin)), MAX_BIN)
+        detect_sequence(np.zeros((min_frames(config), side, side), np.float32),
                         dataclasses.replace(config, exclude=()))
         initiate_detections(corners, **asdict(config.initiate))
 
 
-def check_size(shape, path=None) -> None:
-    """Refuse frames smaller than ``MIN_SIDE`` px a side, (T, H, W) ``shape``: no room for
-    a target and its background (``process`` and ``track``)."""
+def check_size(shape, path=None, factor: int = 1) -> None:
+    """Refuse frames smaller than ``MIN_SIDE`` px a side, (T, H, W) ``shape``, once binned
+    by ``factor`` (``suppress.bin``): no room for a target and its background (``process``
+    and ``track``)."""
     _, h, w = shape
-    if min(h, w) < MIN_SIDE:
-        raise InputError(f"frames of {w}x{h} px are too small: a target and its "
+    if min(h, w) // factor < MIN_SIDE:
+        binned = f" binned {factor}x{factor} (suppress.bin)" if factor > 1 else ""
+        raise InputError(f"frames of {w}x{h} px{binned} are too small: a target and its "
                          f"background need at least {MIN_SIDE}x{MIN_SIDE} px", path)
 
 
@@ -416,9 +429,10 @@ def check_frames(shape, config: ProcessConfig, path=None) -> None:
     shape : tuple of int
         (T, H, W) of the sequence.
     """
-    check_size(shape, path)
+    b = check_bin(config.suppress.bin)
+    check_size(shape, path, b)
     _, h, w = shape
-    need = WINDOW_BYTES_PER_PIXEL * config.combine.length * h * w
+    need = WINDOW_BYTES_PER_PIXEL * config.combine.length * (h // b) * (w // b)
     available = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
     if need > available:
         raise InputError(f"a window of {config.combine.length} frames of {w}x{h} px needs "

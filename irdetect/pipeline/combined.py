@@ -15,6 +15,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from irdetect import tables
+from irdetect.binning import check_bin
 from irdetect.combine import combine
 from irdetect.config import ProcessConfig
 from irdetect.correlate import Correlation, correlate
@@ -124,6 +125,8 @@ class StageParams:
                              f"got {self.long_memory!r}")
         # the reader measures the camera's gain control and undoes it
         self.gain_step = self.suppress.pop("gain_step")
+        # the driver bins the frames before they are read (``irdetect.binning``)
+        self.bin = check_bin(self.suppress.pop("bin"))
         self.combine = {**asdict(config.combine), "step": config.combine.length}
         self.detect = asdict(config.detect)
         self.fuse = asdict(config.fuse)

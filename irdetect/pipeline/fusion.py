@@ -34,6 +34,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
 from irdetect import tables
+from irdetect.binning import to_binned, to_input
 from irdetect.config import ProcessConfig
 from irdetect.initiate.base import vote_threshold
 
@@ -578,7 +579,8 @@ def finish(combined: np.ndarray, peaks: np.ndarray, camera: np.ndarray,
         The configuration the run used (``fit_config``'s, for short sequences).
     n_frames : int
     shape : (int, int)
-        Frame (H, W).
+        Frame (H, W) as read (before ``suppress.bin``: the tables are in its pixels, and
+        so are those returned).
 
     Returns
     -------
@@ -592,6 +594,11 @@ def finish(combined: np.ndarray, peaks: np.ndarray, camera: np.ndarray,
     from irdetect.pipeline.perframe import frame_tracks
 
     fc, cc = config.frame, config.combine
+    # a binned run's tables come in the input's pixels; its stages work in binned ones
+    b = config.suppress.bin
+    combined = to_binned("combined_detections", combined, b)
+    peaks, camera = to_binned("frame_detections", peaks, b), to_binned("camera", camera, b)
+    shape = (shape[0] // b, shape[1] // b)
     starts = window_starts(n_frames, length=cc.length, step=cc.step, tail=cc.tail)
     if fc.enabled:
         level = frame_level(shape, fc.false_rate)
@@ -621,7 +628,9 @@ def finish(combined: np.ndarray, peaks: np.ndarray, camera: np.ndarray,
     h, w = shape
     inside = ((detections["x"] >= -0.5) & (detections["x"] <= w - 0.5)
               & (detections["y"] >= -0.5) & (detections["y"] <= h - 0.5))
-    return {"frame_tracks": ft, "detections": detections[inside], "tracks": tracks}
+    return {"frame_tracks": to_input("frame_tracks", ft, b),
+            "detections": to_input("detections", detections[inside], b),
+            "tracks": to_input("tracks", tracks, b)}
 
 
 def extend_tracks(tracks: np.ndarray, detections: np.ndarray, camera, gate: float) -> np.ndarray:

@@ -45,6 +45,7 @@ from typing import Iterator
 import cv2
 import numpy as np
 
+from irdetect.binning import Binned
 from irdetect.gain import STEP
 from irdetect.peaks import RING_PX, frame_peaks
 from irdetect.suppress import (camera_moves, future_frames, past_frames,
@@ -65,7 +66,7 @@ def detector_blocks(frames, *, length: int = 12, psf: float = 1.0, tile: int = 3
 
     Parameters
     ----------
-    frames : ndarray of shape (T, H, W) or irdetect.io.FrameSource
+    frames : ndarray of shape (T, H, W), irdetect.io.FrameSource or irdetect.binning.Binned
         Raw frames; anything with ``len()``, ``.shape`` and slicing.
     length : int
         Frames per window (the combined-frame path's 12): the noise scale is measured per
@@ -98,6 +99,7 @@ def detector_blocks(frames, *, length: int = 12, psf: float = 1.0, tile: int = 3
 
     sp = {**SUPPRESS_DEFAULTS, **(suppression or {})}
     sp.pop("long_memory", None)          # process's long memory: the tracker has none
+    sp.pop("bin", None)                  # ``irdetect.track.track`` bins the frames
     gain_step = sp.pop("gain_step", STEP)           # the reader's (``irdetect.gain``)
     n = int(frames.shape[0])
     if n == 0:
@@ -111,7 +113,9 @@ def detector_blocks(frames, *, length: int = 12, psf: float = 1.0, tile: int = 3
     reader = Reader(frames, past_frames(**sp), length, max(max(ahead), back),
                     camera=sp["method"] in ("auto", "registered"), gain_step=gain_step)
     scene = np.zeros((n, 2))            # the offsets the tracks' scene coordinates take
-    floor = quantisation_floor(frames[0:1][0], psf)
+    # integer frames' quantisation, which a block's mean divides by the block's side
+    raw = frames.frames if isinstance(frames, Binned) else frames
+    floor = quantisation_floor(raw[0:1][0], psf) / getattr(frames, "factor", 1)
     for s, extra in zip(starts, ahead):
         stop = min(n, s + length)
         if s == 0 and back and stop < n:

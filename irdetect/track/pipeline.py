@@ -10,6 +10,7 @@ import numpy as np
 from tqdm import tqdm
 
 from irdetect import tables
+from irdetect.binning import Binned, binned_mask, check_bin, to_input
 from irdetect.exclude import excluded, exclusion_mask
 from irdetect.io.sources import FrameSource, check_values
 from irdetect.peaks import STANDARDISE_ERROR, cfar_level, frame_level
@@ -78,7 +79,10 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     suppression : dict, optional
         Keywords of ``irdetect.suppress.suppress`` for the detector's regions (the
         ``[suppress]`` table; ``irdetect.track.detector.SUPPRESS_DEFAULTS`` otherwise);
-        its ``polarity`` ``"dark"`` mirrors the frames of the top-hat regions too.
+        its ``polarity`` ``"dark"`` mirrors the frames of the top-hat regions too, and its
+        ``bin`` (> 1) averages blocks of that many pixels a side first for either region
+        source (``irdetect.binning``; the points, tracks and camera rows given out are in
+        the input's pixels).
     camera_sink : callable, optional
         Called with the ``irdetect.tables.CAMERA`` rows (the camera's offset x, y px of
         every frame) as they are measured (the detector's regions only).
@@ -213,7 +217,13 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     if len(frames.shape) != 3:
         raise ValueError(f"frames must be (T, H, W), got shape {frames.shape}")
     n, h, w = frames.shape
-    excluded_px = exclusion_mask(exclude, (h, w))
+    # oversampled footage is binned first (``suppress.bin``, ``irdetect.binning``); the
+    # tables given out are in the input's pixels
+    factor = check_bin((suppression or {}).get("bin", 1))
+    excluded_px = binned_mask(exclusion_mask(exclude, (h, w)), factor)
+    if factor > 1:
+        frames = Binned(frames, factor)
+        n, h, w = frames.shape
     if not grey_scale > 0:
         raise ValueError(f"grey_scale must be > 0, got {grey_scale!r}")
     if not (np.isfinite(false_tracks) and false_tracks >= 0):
@@ -280,7 +290,10 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
             raise ValueError("sea_sky needs regions = 'tophat' (the maritime profile)")
         extract_regions(np.zeros((8, 8), np.float32), **region_kw)   # names bad gates
     chunks: list[np.ndarray] = []
-    emit = sink if sink is not None else chunks.append
+    give = sink if sink is not None else chunks.append
+
+    def emit(rows):
+        give(to_input("track_points", rows, factor))
     offsets = np.zeros((n, 2))
     n_regions = 0
 
@@ -301,9 +314,10 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
             if off is not None:
                 offsets[start:start + len(block)] = off
                 if camera_sink is not None:
-                    camera_sink(tables.from_columns(
+                    camera_sink(to_input("camera", tables.from_columns(
                         tables.CAMERA, frame=np.arange(start, start + len(block)),
-                        dx=off[:, 0], dy=off[:, 1], gain=gains[:, 0], level=gains[:, 1]))
+                        dx=off[:, 0], dy=off[:, 1], gain=gains[:, 0], level=gains[:, 1]),
+                        factor))
             out = []
             for j, frame in enumerate(block):
                 seeds = None
@@ -340,7 +354,7 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
             if len(pts):
                 emit(pts)
             bar.update(len(block))
-    summary = tracker.finish()
+    summary = to_input("tracks", tracker.finish(), factor)
     log.debug("tracked %d frames: %d regions, %d confirmed tracks", n, n_regions, len(summary))
     points = np.concatenate(chunks) if chunks else tables.empty(tables.TRACK_POINT)
     return points, summary
