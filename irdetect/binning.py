@@ -25,20 +25,32 @@ import numpy as np
 
 from irdetect.io.sources import FrameSource, check_values
 
-#: per table: its (x, y) position columns, the columns that scale by the factor
-#: (velocities, offsets) and by its square (areas); ``rho``, with ``theta``, is a line's
+#: per table (``irdetect.tables.BY_NAME``): its (x, y) position columns, ...
 _POSITIONS = {
     "candidates": [("x", "y")], "detections": [("x", "y")],
     "combined_detections": [("x", "y")], "frame_detections": [("x", "y")],
     "frame_tracks": [("x", "y")], "track_points": [("x", "y")], "tracks": [("x0", "y0")],
     "segments": [("x1", "y1"), ("x2", "y2"), ("x3", "y3")],
 }
+#: ... the columns that scale by the factor (velocities, camera offsets) ...
 _LINEAR = {
     "detections": ("vx", "vy"), "combined_detections": ("vx", "vy"), "segments": ("vx", "vy"),
     "tracks": ("vx", "vy"), "frame_tracks": ("vx", "vy", "svx", "svy"),
     "track_points": ("vx", "vy"), "camera": ("dx", "dy"),
 }
+#: ... and those that scale by its square (areas); ``tracks``' rho moves with theta
 _AREAS = {"track_points": ("area",)}
+
+#: the largest ``suppress.bin``
+MAX_BIN = 16
+
+
+def check_bin(factor) -> int:
+    """``suppress.bin`` as an int, or ValueError naming it."""
+    if isinstance(factor, bool) or int(factor) != factor or not 1 <= factor <= MAX_BIN:
+        raise ValueError(f"suppress.bin must be an integer from 1 to {MAX_BIN}, "
+                         f"got {factor!r}")
+    return int(factor)
 
 
 class Binned:
@@ -87,18 +99,6 @@ class Binned:
             cv2.resize(frame[:h * f, :w * f].astype(np.float32, copy=False), (w, h),
                        dst=block, interpolation=cv2.INTER_AREA)
         return out
-
-
-#: the largest ``suppress.bin``
-MAX_BIN = 16
-
-
-def check_bin(factor) -> int:
-    """``suppress.bin`` as an int, or ValueError naming it."""
-    if isinstance(factor, bool) or int(factor) != factor or not 1 <= factor <= MAX_BIN:
-        raise ValueError(f"suppress.bin must be an integer from 1 to {MAX_BIN}, "
-                         f"got {factor!r}")
-    return int(factor)
 
 
 def binned_mask(mask: np.ndarray | None, factor: int) -> np.ndarray | None:
