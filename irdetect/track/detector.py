@@ -113,9 +113,11 @@ def detector_blocks(frames, *, length: int = 12, psf: float = 1.0, tile: int = 3
     reader = Reader(frames, past_frames(**sp), length, max(max(ahead), back),
                     camera=sp["method"] in ("auto", "registered"), gain_step=gain_step)
     scene = np.zeros((n, 2))            # the offsets the tracks' scene coordinates take
-    # integer frames' quantisation, which a block's mean divides by the block's side
-    raw = frames.frames if isinstance(frames, Binned) else frames
-    floor = quantisation_floor(raw[0:1][0], psf) / getattr(frames, "factor", 1)
+    # integer frames' quantisation (the input's; a block's mean divides it by its side)
+    if isinstance(frames, Binned):
+        floor = quantisation_floor(frames.frames[0:1][0], psf) / frames.factor
+    else:
+        floor = quantisation_floor(frames[0:1][0], psf)
     for s, extra in zip(starts, ahead):
         stop = min(n, s + length)
         if s == 0 and back and stop < n:
