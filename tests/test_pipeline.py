@@ -407,3 +407,26 @@ def test_the_detections_do_not_depend_on_the_sensors_units():
                                        rtol=1e-3, atol=1e-3)
         for key in ("dx", "dy"):
             np.testing.assert_allclose(out["camera"][key], ref["camera"][key], atol=1e-3)
+
+
+def test_frames_repeated_by_a_frame_rate_conversion_are_named(caplog):
+    """Every 5th frame shown twice (a 25 frames/s sensor captured at 30): one warning naming
+    them, from process's reader and the tracker's; a lone repeat, as recordings hold now
+    and then, and a still image say nothing."""
+    from irdetect.track import track
+
+    frames, _ = simulate("wan2008", snr=6, n_targets=1, n_frames=40, height=64, width=64,
+                         rng=2)
+    converted = frames[np.concatenate([[t, t] if t % 5 == 4 else [t] for t in range(40)])]
+    lone = frames[np.r_[0:10, 9, 10:40]]
+    still = np.repeat(frames[:1], 40, axis=0)
+    for clip, want in ((converted, 8), (lone, 0), (still, 0)):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="irdetect"):
+            detect_sequence(clip)
+            track(clip)
+        said = [r.getMessage() for r in caplog.records if "repeat the frame" in r.getMessage()]
+        assert len(said) == (2 if want else 0), said
+        if want:
+            assert all(m.startswith(f"{want} frames (5, 11, 17, 23, 29 and 3 more)")
+                       for m in said), said

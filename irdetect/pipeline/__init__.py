@@ -320,6 +320,8 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
                                        done.start + cc.length, done.peaks))
         if steps := reader.gain_steps():
             log.info(steps)
+        if repeats := reader.repeated():
+            log.warning(repeats)
     finally:
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)

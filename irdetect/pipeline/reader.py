@@ -25,6 +25,8 @@ class Reader:
 
     #: largest read-ahead in bytes (a 64-frame chunk of 640x512 uint16 frames is 42 MB)
     MAX_BLOCK_BYTES = 48 << 20
+    #: the share of frames repeating the frame before them that ``repeated`` reports
+    REPEATED = 0.05
 
     def __init__(self, frames, history: int, length: int, ahead: int = 0,
                  camera: bool = True, gain_step: float = STEP):
@@ -42,6 +44,9 @@ class Reader:
         self.agc = SensorGain(gain_step) if gain_step > 0 else None
         self.gains = np.tile([1.0, 0.0], (n, 1))
         self.measured = 0           # frames [0, measured) have offsets and gains
+        # frames equal to the frame before them, and the last frame measured
+        self.repeats: list[int] = []
+        self._last: np.ndarray | None = None
         # the raw values an integer sensor clips at (``normalise``)
         kind = np.dtype(frames.dtype)
         self.limits = ((np.iinfo(kind).min, np.iinfo(kind).max) if kind.kind in "iu"
@@ -92,7 +97,29 @@ class Reader:
             if self.agc is not None:
                 self.gains[first:stop] = self.agc.update(out[first - start:],
                                                          self.offsets[first:stop])
+            prev = self._last if first == self.measured else None
+            for t, frame in enumerate(out[first - start:], first):   # a loop over frames
+                if prev is not None and np.array_equal(frame, prev):
+                    self.repeats.append(t)
+                prev = frame
+            self._last = prev.copy()
             self.measured = stop
+
+    def repeated(self, shown: int = 5) -> str | None:
+        """One line on the frames read that repeat the frame before them exactly, when
+        ``REPEATED`` of them or more do (None otherwise, and when every one does: a still
+        image, which ``flat_frames`` reports). The recordings hold a lone repeat now and then
+        (4 of the 17 real folders one each), which costs nothing; a frame-rate conversion
+        repeats every 5th or 6th frame."""
+        n = len(self.repeats)
+        if n < max(2, self.REPEATED * self.measured) or n >= self.measured - 1:
+            return None
+        listed = ", ".join(map(str, self.repeats[:shown]))
+        more = f" and {n - shown} more" if n > shown else ""
+        return (f"{n} frame{'s' if n > 1 else ''} ({listed}{more}) repeat the frame before "
+                f"{'them' if n > 1 else 'it'} exactly (a frame-rate conversion, or a codec that "
+                "copied them): a target seems to stop there and then to jump, which costs "
+                "detections and tracks; the sensor's own frames are better (docs/real.md)")
 
     def gain_steps(self) -> str | None:
         """One line on the gain steps taken so far (``SensorGain.summary``), or None."""

@@ -154,6 +154,8 @@ def detector_blocks(frames, *, length: int = 12, psf: float = 1.0, tile: int = 3
         yield s, residual, scene[s:stop].copy(), reader.gains[s:stop].copy()
     if steps := reader.gain_steps():
         log.info(steps)
+    if repeats := reader.repeated():
+        log.warning(repeats)
 
 
 def _suppress_window(block, previous, following, camera, sp) -> tuple[np.ndarray, bool]:
