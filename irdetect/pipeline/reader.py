@@ -116,10 +116,10 @@ class Reader:
             return None
         listed = ", ".join(map(str, self.repeats[:shown]))
         more = f" and {n - shown} more" if n > shown else ""
-        return (f"{n} frame{'s' if n > 1 else ''} ({listed}{more}) repeat the frame before "
-                f"{'them' if n > 1 else 'it'} exactly (a frame-rate conversion, or a codec that "
-                "copied them): a target seems to stop there and then to jump, which costs "
-                "detections and tracks; the sensor's own frames are better (docs/real.md)")
+        return (f"{n} frames ({listed}{more}) repeat the frame before them exactly (a "
+                "frame-rate conversion, or a codec that copied them): a target seems to stop "
+                "there and then to jump, which costs detections and tracks; the sensor's own "
+                "frames are better (docs/real.md)")
 
     def gain_steps(self) -> str | None:
         """One line on the gain steps taken so far (``SensorGain.summary``), or None."""
