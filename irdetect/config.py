@@ -261,6 +261,7 @@ class TrackConfig:
     max_tracks: int = 200
     init_speed: float = 2.0
     feature_memory: float = 0.9
+    lost_clutter: float = 1.0
     window: int = 64
 
 

@@ -128,6 +128,33 @@ def test_frames_without_regions_coast_then_end():
     assert summary["frame_end"][0] == 17 and summary["score"][0] == pytest.approx(15 / 18)
 
 
+def test_a_coasting_track_whose_gate_would_hold_clutter_is_lost():
+    # a target jittering 1 px about its line widens its gate through the adaptive noise;
+    # once it is gone, its coasting gate soon holds more of the dense clutter field beside
+    # it than one region on average, and a region appearing 10 px off its prediction is no
+    # longer taken (the paper's tracker, lost_clutter = inf, takes it 4 frames later)
+    clutter = [(float(x), float(y), 6, 120) for x in range(300, 400, 10)
+               for y in range(5, 400, 10)]                    # 0.0025 regions per px^2
+
+    def last_frame(lost_clutter):
+        tr = FCMPMHTTracker(lost_clutter=lost_clutter)
+        points = []
+        for k in range(30):
+            objs = list(clutter)
+            if k < 16:
+                objs.append((40.0 + 2 * k, 200.0 + (1.0 if k % 2 else -1.0), 12, 150))
+            if k == 20:
+                objs.append((40.0 + 2 * k, 210.0, 12, 150))
+            points.append(tr.step(k, _regions(objs), (400, 400)))
+        points = np.concatenate(points)
+        return points["frame"][points["track_id"] == 1].max()
+
+    assert last_frame(np.inf) == 20
+    assert last_frame(1.0) == 15
+    with pytest.raises(ValueError, match="lost_clutter"):
+        FCMPMHTTracker(lost_clutter=0.0)
+
+
 def test_a_confirmed_track_that_released_no_point_has_no_summary_row():
     # confirmed while coasting (the clutter test may pass on a missed frame) and never hit
     # again: its held-back points are dropped, so it must not leave an empty row

@@ -63,7 +63,8 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
           direction_after: int = 3, min_speed: float = 0.2, confirm_hits: int = 3,
           confirm_window: int = 30, max_misses: int = 12, max_merged: int = 150,
           merge_margin: float = 1.0, max_tracks: int = 200, init_speed: float = 2.0,
-          feature_memory: float = 0.9, window: int = 64) -> tuple[np.ndarray, np.ndarray]:
+          feature_memory: float = 0.9, lost_clutter: float = 1.0,
+          window: int = 64) -> tuple[np.ndarray, np.ndarray]:
     """Track targets frame by frame through a sequence (Cheng et al.).
 
     Parameters
@@ -176,7 +177,8 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
         the harbour scene, whose residual sigma is 4.4).
     frame_interval, q0, r, adaptive, beta, m, gate, w_position, w_grey, w_area, w_direction,
     area_scale, direction_after, min_speed, confirm_hits, confirm_window,
-    max_misses, max_merged, merge_margin, max_tracks, init_speed, feature_memory
+    max_misses, max_merged, merge_margin, max_tracks, init_speed, feature_memory,
+    lost_clutter
         Tracker parameters, see :class:`irdetect.track.tracker.FCMPMHTTracker` (the GNN
         baseline ignores the FCM, adaptive-noise and merge ones).
     window : int
@@ -268,6 +270,7 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
                   confirm_hits=confirm_hits, confirm_window=confirm_window,
                   max_misses=max_misses, max_tracks=max_tracks, init_speed=init_speed,
                   feature_memory=feature_memory, max_birth_area=max_area, confirm=test,
+                  lost_clutter=lost_clutter,
                   max_speed=max_speed if three_point and test is not None else 0.0)
     if method == "gnn":
         tracker = GNNTracker(**common)
