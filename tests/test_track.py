@@ -132,7 +132,7 @@ def test_a_coasting_track_whose_gate_would_hold_clutter_is_lost():
     # a target jittering 1 px about its line widens its gate through the adaptive noise;
     # once it is gone, its coasting gate soon holds more of the dense clutter field beside
     # it than one region on average, and a region appearing 10 px off its prediction is no
-    # longer taken (the paper's tracker, lost_clutter = inf, takes it 4 frames later)
+    # longer taken (the paper's tracker, lost_clutter = inf, takes it at frame 20)
     clutter = [(float(x), float(y), 6, 120) for x in range(300, 400, 10)
                for y in range(5, 400, 10)]                    # 0.0025 regions per px^2
 

@@ -109,7 +109,7 @@ class _TrackerBase:
         self.confirm_hits, self.confirm_window = int(confirm_hits), int(confirm_window)
         self.max_misses, self.max_tracks = int(max_misses), int(max_tracks)
         self.lost_clutter = float(lost_clutter)
-        self._seen = [0, 0]               # regions and frames stepped (the region density)
+        self._n_regions = self._n_frames = 0     # seen so far: the regions' density
         self.init_speed = float(init_speed)
         self.feature_memory = float(feature_memory)
         self.max_birth_area = float(max_birth_area)
@@ -183,9 +183,9 @@ class _TrackerBase:
         self.tracks = alive
         z = np.column_stack([regions["x"], regions["y"]]) if len(regions) else np.zeros((0, 2))
         seeds = np.ones(len(z), bool) if seeds is None else np.asarray(seeds, bool)
-        self._seen[0] += int(seeds.sum())
-        self._seen[1] += 1
-        self._end_lost(self._seen[0] / (self._seen[1] * h * w))
+        self._n_regions += int(seeds.sum())
+        self._n_frames += 1
+        self._end_lost(self._n_regions / (self._n_frames * h * w))
         assign, shared, blocked = self._associate(regions, z)
         if self.confirm is not None:
             self._count_clutter(z, assign, seeds)
@@ -232,21 +232,23 @@ class _TrackerBase:
         return _summaries(done)
 
     def _end_lost(self, density: float) -> None:
-        """End the confirmed tracks whose gate would hold ``lost_clutter`` of this
-        sequence's regions or more on average (``density``: regions per px^2 per frame so
-        far): a hit there is no likelier the target than clutter, and taking it would
-        widen the gate further through the adaptive noise (a track coasting 12 frames on
-        istd640-seq3-135's clutter grew to a 4-sigma gate of 90 px, took a region 40 px
-        off, and then jumped up to 177 px a frame). The gate of a track is the ellipse
-        e^T S^-1 e <= ``gate``^2, of area pi gate^2 sqrt(det S)."""
+        """End the confirmed tracks that missed their last frame and whose gate would hold
+        ``lost_clutter`` of this sequence's regions or more on average (``density``:
+        regions per px^2 per frame so far): a hit there is no likelier the target than
+        clutter, and taking it would widen the gate further through the adaptive noise (a
+        track coasting 12 frames on istd640-seq3-135's clutter grew to a 4-sigma gate of
+        about 100 px, took a region 40 px off, and then jumped up to 177 px a frame). The
+        gate of a track is the ellipse e^T S^-1 e <= ``gate``^2, of area
+        pi gate^2 sqrt(det S). A track hit every frame is kept."""
         confirmed = [t for t in self.tracks if t.confirmed and t.misses]
         if density <= 0 or not confirmed:
             return
         S = np.array([self._innovation_cov(t) for t in confirmed])
         area = math.pi * self.gate ** 2 * np.sqrt(np.linalg.det(S))
-        for t in np.array(confirmed, dtype=object)[area * density >= self.lost_clutter]:
-            self._end(t)
-            self.tracks.remove(t)
+        for t, a in zip(confirmed, area):
+            if a * density >= self.lost_clutter:
+                self._end(t)
+                self.tracks.remove(t)
 
     # -- Kalman --------------------------------------------------------------------------
     def _process_noise(self, t: Track) -> np.ndarray:
@@ -590,9 +592,10 @@ class FCMPMHTTracker(_TrackerBase):
     max_misses : int
         A confirmed track ends after more than this many consecutive misses.
     lost_clutter : float
-        A confirmed track also ends, lost, when its gate would hold this many of the
-        sequence's regions or more on average (its area times their measured density): a
-        hit there is no likelier the target than clutter. inf: never (the paper's).
+        A confirmed track that missed its last frame also ends, lost, when its gate would
+        hold this many of the sequence's regions or more on average (its area times their
+        measured density): a hit there is no likelier the target than clutter. inf: never
+        (the paper's).
     max_merged : int
         Two tracks may share one region (a merge) for at most this many frames; then the
         younger one ends (a duplicate, not a merge).
