@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from irdetect.io.sources import FrameSource, check_values
+from irdetect.verify import quantisation_floor
 
 #: per table (``irdetect.tables.BY_NAME``): its (x, y) position columns, ...
 _POSITIONS = {
@@ -99,6 +100,16 @@ class Binned:
             cv2.resize(frame[:h * f, :w * f].astype(np.float32, copy=False), (w, h),
                        dst=block, interpolation=cv2.INTER_AREA)
         return out
+
+
+def sequence_floor(frames, smooth: float) -> float:
+    """``irdetect.verify.quantisation_floor`` of a sequence's first frame; of the input's
+    first frame divided by the factor when ``frames`` is :class:`Binned` (the mean of a
+    block of f x f whole grey levels holds their quantisation error divided by f).
+    ``frames``: (T, H, W) with T >= 1, anything :class:`Binned` takes, or a Binned."""
+    if isinstance(frames, Binned):
+        return quantisation_floor(frames.frames[0:1][0], smooth) / frames.factor
+    return quantisation_floor(frames[0:1][0], smooth)
 
 
 def binned_mask(mask: np.ndarray | None, factor: int) -> np.ndarray | None:

@@ -26,7 +26,8 @@ from typing import Iterator
 import numpy as np
 
 from irdetect import kernels, tables
-from irdetect.binning import MAX_BIN, Binned, binned_mask, check_bin, to_input
+from irdetect.binning import (MAX_BIN, Binned, binned_mask, check_bin, sequence_floor,
+                              to_input)
 from irdetect.combine import frames_needed, window_starts
 from irdetect.config import ProcessConfig, to_json
 from irdetect.errors import InputError, refused_settings
@@ -37,7 +38,6 @@ from irdetect.pipeline.fusion import SUPPORT_GATE, finish, initiate_tracks
 from irdetect.pipeline.reader import Reader
 from irdetect.pipeline.timing import Ready, lap
 from irdetect.suppress import STILL_PX, future_frames, past_frames
-from irdetect.verify import quantisation_floor
 
 __all__ = ["CHUNK_TABLES", "N_CORRELATE", "check_config", "check_frames", "check_size",
            "detect_sequence", "finish", "fit_config", "initiate_tracks", "iter_results",
@@ -175,11 +175,10 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
     regular = len(window_starts(n_frames, length=cc.length, step=cc.step))
     params = StageParams(config)
     params.exclude = binned_mask(exclusion_mask(config.exclude, shape[1:]), params.bin)
-    # integer frames' quantisation, which a block's mean divides by the block's side
-    params.floor = (quantisation_floor(frames[0:1][0], params.psf) / params.bin
-                    if n_frames else 0.0)
     if params.bin > 1:
         frames = Binned(frames, params.bin)
+    # integer frames' quantisation (the input's, a binned block's mean holds less)
+    params.floor = sequence_floor(frames, params.psf) if n_frames else 0.0
     # the first window(s) look ahead: their first frames have no past (``lead_in``)
     ahead = [future_frames(start=int(s), stop=int(s) + cc.length, **params.suppress)
              for s in starts]

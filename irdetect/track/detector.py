@@ -45,13 +45,13 @@ from typing import Iterator
 import cv2
 import numpy as np
 
-from irdetect.binning import Binned
+from irdetect.binning import sequence_floor
 from irdetect.gain import STEP
 from irdetect.peaks import RING_PX, frame_peaks
 from irdetect.suppress import (camera_moves, future_frames, past_frames,
                                prefer_registered, suppress)
 from irdetect.track.regions import REGION
-from irdetect.verify import matched_frame, quantisation_floor, standardise
+from irdetect.verify import matched_frame, standardise
 
 log = logging.getLogger(__name__)
 
@@ -113,11 +113,8 @@ def detector_blocks(frames, *, length: int = 12, psf: float = 1.0, tile: int = 3
     reader = Reader(frames, past_frames(**sp), length, max(max(ahead), back),
                     camera=sp["method"] in ("auto", "registered"), gain_step=gain_step)
     scene = np.zeros((n, 2))            # the offsets the tracks' scene coordinates take
-    # integer frames' quantisation (the input's; a block's mean divides it by its side)
-    if isinstance(frames, Binned):
-        floor = quantisation_floor(frames.frames[0:1][0], psf) / frames.factor
-    else:
-        floor = quantisation_floor(frames[0:1][0], psf)
+    # integer frames' quantisation (the input's, a binned block's mean holds less)
+    floor = sequence_floor(frames, psf)
     for s, extra in zip(starts, ahead):
         stop = min(n, s + length)
         if s == 0 and back and stop < n:
