@@ -82,9 +82,10 @@ TRACK = np.dtype([
 ])
 
 #: The camera's image motion, one row per frame: a scene point at (x, y) in frame 0 is at
-#: (x + dx, y + dy) in frame ``frame`` (px; ``irdetect.camera``).
+#: (x + dx, y + dy) in frame ``frame`` (px; ``irdetect.camera``); ``repeated``: the frame
+#: repeats the frame before it exactly (``irdetect.repeats``).
 CAMERA = np.dtype([("frame", "<i8"), ("dx", "<f8"), ("dy", "<f8"), ("gain", "<f8"),
-                   ("level", "<f8")])
+                   ("level", "<f8"), ("repeated", "?")])
 
 #: Radar-style measurements, one row per measurement; range/azimuth NaN when not polar.
 SCAN = np.dtype([

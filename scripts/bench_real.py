@@ -256,7 +256,7 @@ def run_clips(data: dict, cfg: ProcessConfig, keys, clip_of, label, config_of=No
 
 
 #: section 7: each sequence as another recording of it would give it (``transformed``)
-TRANSFORMS = ("mirrored", "reversed", "every 2nd frame", "half size")
+TRANSFORMS = ("mirrored", "reversed", "every 2nd frame", "every 5th frame twice", "half size")
 #: section 7 too: oversampled (``transformed``), with the defaults and with ``--bin 2``
 DOUBLED = ("double size", "double size, --bin 2")
 
@@ -265,12 +265,13 @@ def transformed(frames, truth, kind: str, gate: float):
     """(frames, truth, gate) of the sequence as ``kind`` of TRANSFORMS gives it:
     ``mirrored`` left to right; ``reversed`` in time (the targets and the camera move the
     other way); ``every 2nd frame`` (a sensor at half the frame rate: twice the speeds in
-    px/frame); ``half size`` (each side halved by area averaging, ``cv2.INTER_AREA``: a
-    sensor of half the resolution, the targets smaller and dimmer against their pixel;
-    the gate halved, not below 3 px); ``double size`` (each side doubled by cubic
-    interpolation, ``cv2.INTER_CUBIC``: footage sampled twice as finely as its detail, an
-    analog video digitised at twice its sensor's resolution; the speeds and the gate
-    doubled). x = column, y = row."""
+    px/frame); ``every 5th frame twice`` (a frame-rate conversion, 25 frames/s shown at
+    30: frames 4, 9, 14, ... repeated, the truth with them); ``half size`` (each side
+    halved by area averaging, ``cv2.INTER_AREA``: a sensor of half the resolution, the
+    targets smaller and dimmer against their pixel; the gate halved, not below 3 px);
+    ``double size`` (each side doubled by cubic interpolation, ``cv2.INTER_CUBIC``:
+    footage sampled twice as finely as its detail, an analog video digitised at twice its
+    sensor's resolution; the speeds and the gate doubled). x = column, y = row."""
     n, h, w = frames.shape
     t = truth.copy()
     if kind == "mirrored":
@@ -280,6 +281,12 @@ def transformed(frames, truth, kind: str, gate: float):
         t = t[::-1] if kind == "reversed" else t[::2]
         t["frame"] = np.arange(len(t))
         return (frames[::-1] if kind == "reversed" else frames[::2]), t, gate
+    if kind == "every 5th frame twice":
+        shown = np.repeat(np.arange(n), np.where(np.arange(n) % 5 == 4, 2, 1))
+        t = np.concatenate([truth[truth["frame"] == f] for f in shown])
+        t["frame"] = np.repeat(np.arange(len(shown)),
+                               [np.count_nonzero(truth["frame"] == f) for f in shown])
+        return frames[shown], t, gate
     if kind == "half size":
         small = np.stack([cv2.resize(np.asarray(f, np.float32), (w // 2, h // 2),
                                      interpolation=cv2.INTER_AREA) for f in frames])

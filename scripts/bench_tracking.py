@@ -21,8 +21,9 @@ settings chosen on them (REAL_GRID) are reported leave-one-out, and a clutter-on
 each (the frames' largest strip at least CROP_MARGIN px from the target's whole path) counts
 the false tracks per 1,000 frames; each is also tracked under an added pan (bench_real's
 ``pan_clips``, the clips of its section 5), with added noise (its ``noisy``, section 6)
-transformed (its ``transformed``, section 7: mirrored, reversed, every 2nd frame, half
-size, double size with the defaults and with ``suppress.bin`` 2) and compressed (its
+transformed (its ``transformed``, section 7: mirrored, reversed, every 2nd frame, every
+5th frame twice, half size, double size with the defaults and with ``suppress.bin`` 2) and
+compressed (its
 ``compressed``, section 8: JPEG frames, MPEG-4 video).
 Runs go through irdetect.batch.map_tasks, so a many-seed study spreads over local processes
 (--jobs) or a Dask cluster (--scheduler) with one option; frames/s are per run either way.

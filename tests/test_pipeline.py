@@ -411,8 +411,9 @@ def test_the_detections_do_not_depend_on_the_sensors_units():
 
 def test_frames_repeated_by_a_frame_rate_conversion_are_named(caplog):
     """Every 5th frame shown twice (a 25 frames/s sensor captured at 30): one warning naming
-    them, from process's reader and the tracker's; a lone repeat, as recordings hold now
-    and then, and a still image say nothing."""
+    them from process's reader, and the tracker's note that it tracked the new frames
+    (``irdetect.repeats``); a lone repeat, as recordings hold now and then, and a still
+    image say nothing."""
     from irdetect.track import track
 
     frames, _ = simulate("wan2008", snr=6, n_targets=1, n_frames=40, height=64, width=64,
@@ -422,11 +423,15 @@ def test_frames_repeated_by_a_frame_rate_conversion_are_named(caplog):
     still = np.repeat(frames[:1], 40, axis=0)
     for clip, want in ((converted, 8), (lone, 0), (still, 0)):
         caplog.clear()
-        with caplog.at_level(logging.WARNING, logger="irdetect"):
+        with caplog.at_level(logging.INFO, logger="irdetect"):
             detect_sequence(clip)
             track(clip)
-        said = [r.getMessage() for r in caplog.records if "repeat the frame" in r.getMessage()]
+        said = [(r.levelno, r.getMessage()) for r in caplog.records
+                if "repeat the frame" in r.getMessage()]
         assert len(said) == (2 if want else 0), said
         if want:
-            assert all(m.startswith(f"{want} frames (5, 11, 17, 23, 29 and 3 more)")
-                       for m in said), said
+            assert said[0][0] == logging.WARNING
+            assert said[0][1].startswith(f"{want} frames (5, 11, 17, 23, 29 and 3 more)")
+            assert said[1] == (logging.INFO, f"{want} of 48 frames repeat the frame before "
+                               "them exactly (a frame-rate conversion): tracked on the 40 "
+                               "new frames (docs/tracking.md)")

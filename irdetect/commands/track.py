@@ -74,8 +74,9 @@ def run(args) -> int:
     output = Path(args.output or f"{path.name if path.is_dir() else path.stem}.track.h5")
     check_output_path(output, args.force, inputs=(args.input,))
     params = {k: getattr(config.track, k) for k in config.track.__dataclass_fields__}
-    with refused_settings(args.config):     # the tracker's own checks, on blank frames
-        track(np.zeros((3, 32, 32), np.float32), lambda rows: None, False,
+    with refused_settings(args.config):     # the tracker's own checks, on flat frames
+        flat = np.arange(3, dtype=np.float32)[:, None, None] + np.zeros((3, 32, 32), np.float32)
+        track(flat, lambda rows: None, False,
               dataclasses.asdict(config.suppress), **params)
     with open_sequence(args.input, dataset=args.dataset) as source:
         check_size(source.shape, args.input, config.suppress.bin)

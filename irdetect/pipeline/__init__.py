@@ -270,7 +270,8 @@ def iter_results(frames, config: ProcessConfig | None = None, *,
         f = np.arange(camera_done, max(end, camera_done))
         chunk["camera"] = tables.from_columns(tables.CAMERA, frame=f, dx=reader.offsets[f, 0],
                                               dy=reader.offsets[f, 1], gain=reader.gains[f, 0],
-                                              level=reader.gains[f, 1])
+                                              level=reader.gains[f, 1],
+                                              repeated=np.isin(f, reader.repeats))
         chunk["frame_detections"] = (tables.empty(tables.FRAME_DETECTION) if peaks is None
                                      else peaks[peaks["frame"] >= camera_done])
         camera_done = end

@@ -29,6 +29,10 @@ scene. A window's track is kept when
    than the clouds it crosses was lost however straight its 12 hits
    (docs/detection.md, "The per-frame path").
 
+A frame that repeats the frame before it exactly (``/camera``'s ``repeated``: a frame-rate
+conversion, ``irdetect.repeats``) is no scan: the chains run on the new frames' clock, in
+which the target moves evenly, and their velocities are given back per input frame.
+
 Coordinates: x = column, y = row, px; time in frames.
 """
 
@@ -60,7 +64,8 @@ def frame_tracks(peaks: np.ndarray, camera: np.ndarray, starts, length: int, *,
     peaks : structured ndarray
         ``irdetect.tables.FRAME_DETECTION`` rows of the whole sequence.
     camera : structured ndarray
-        ``irdetect.tables.CAMERA`` rows (one per frame; zeros for a still camera).
+        ``irdetect.tables.CAMERA`` rows (one per frame; zeros for a still camera), their
+        ``repeated`` frames no scans.
     starts : array_like of int
         First frame of every window; window k covers [starts[k], starts[k] + length).
     length : int
@@ -99,8 +104,9 @@ def frame_tracks(peaks: np.ndarray, camera: np.ndarray, starts, length: int, *,
     if not clutter_speed >= 0:
         raise ValueError(f"clutter_speed must be a number >= 0, got {clutter_speed!r}")
     floor = false_rate / (float(shape[0]) * float(shape[1]))
-    parts = [_window_tracks(peaks, camera, int(s), int(length), k, shape, sigma, max_speed,
-                            false_tracks, confirm_m, confirm_n, floor)
+    clock = new_frame_clock(camera, n_frames)
+    parts = [_window_tracks(peaks, camera, clock, int(s), int(length), k, shape, sigma,
+                            max_speed, false_tracks, confirm_m, confirm_n, floor)
              for k, s in enumerate(starts)]
     out = np.concatenate(parts) if parts else tables.empty(tables.FRAME_TRACK)
     threshold = tail_threshold(out["score"][~out["moving"]], n_frames, false_tracks, level)
@@ -109,17 +115,31 @@ def frame_tracks(peaks: np.ndarray, camera: np.ndarray, starts, length: int, *,
     return out
 
 
-def _window_tracks(peaks, camera, start, length, k, shape, sigma, max_speed, false_tracks,
-                   confirm_m, confirm_n, floor) -> np.ndarray:
+def new_frame_clock(camera: np.ndarray, n_frames: int) -> np.ndarray:
+    """(T,) int: each frame's index among the new frames (a repeat has the index of the
+    frame it repeats; ``camera``'s ``repeated``, frames without a row counted new)."""
+    repeated = np.zeros(n_frames, bool)
+    inside = camera["frame"] < n_frames
+    repeated[camera["frame"][inside]] = camera["repeated"][inside]
+    return np.cumsum(~repeated) - 1
+
+
+def _window_tracks(peaks, camera, clock, start, length, k, shape, sigma, max_speed,
+                   false_tracks, confirm_m, confirm_n, floor) -> np.ndarray:
     """``frame_tracks`` of one window, ``kept`` by tests 1 and 2."""
     sel = np.flatnonzero((peaks["frame"] >= start) & (peaks["frame"] < start + length))
     p = peaks[sel]
+    window = clock[start:start + length]
+    # time u counts new frames: the peaks of a repeat are no scan
     f = p["frame"]
-    if np.unique(f).size < 2:
+    p = p[(f == 0) | (clock[f] != clock[np.maximum(f - 1, 0)])]
+    f = p["frame"]
+    u = clock[f]
+    if np.unique(u).size < 2:
         return tables.empty(tables.FRAME_TRACK)
     off = camera_at(camera, f)
     sx, sy = p["x"] - off[:, 0], p["y"] - off[:, 1]
-    rows, members = initiate_points(sx, sy, f.astype(float), f, method="mn-logic",
+    rows, members = initiate_points(sx, sy, u.astype(float), u, method="mn-logic",
                                     sigma=sigma, v_max=max_speed, gate=GATE,
                                     confirm_m=confirm_m, confirm_n=confirm_n)
     n = len(rows)
@@ -128,13 +148,17 @@ def _window_tracks(peaks, camera, start, length, k, shape, sigma, max_speed, fal
     out = tables.from_columns(tables.FRAME_TRACK, n=n)
     mid = start + (length - 1) / 2.0
     t0 = rows["t_start"]
-    scene_x = rows["x0"] + rows["vx"] * (mid - t0)
-    scene_y = rows["y0"] + rows["vy"] * (mid - t0)
+    u_mid = np.interp(mid, np.arange(start, start + len(window)), window)
+    scene_x = rows["x0"] + rows["vx"] * (u_mid - t0)
+    scene_y = rows["y0"] + rows["vy"] * (u_mid - t0)
     at = camera_at(camera, np.array([start, mid, start + length - 1.0]))
     out["x"], out["y"] = scene_x + at[1, 0], scene_y + at[1, 1]
-    cam_v = (at[2] - at[0]) / max(1.0, length - 1.0)
-    out["svx"], out["svy"] = rows["vx"], rows["vy"]
-    out["vx"], out["vy"] = rows["vx"] + cam_v[0], rows["vy"] + cam_v[1]
+    # new frames per input frame over the window (1 without repeats), and the camera's
+    # image velocity per new frame
+    scale = (window[-1] - window[0]) / (length - 1.0) if length > 1 else 1.0
+    cam_v = (at[2] - at[0]) / max(1.0, window[-1] - window[0])
+    out["svx"], out["svy"] = rows["vx"] * scale, rows["vy"] * scale
+    out["vx"], out["vy"] = (rows["vx"] + cam_v[0]) * scale, (rows["vy"] + cam_v[1]) * scale
     out["combined_frame"] = k
     out["frame_start"], out["frame_end"] = start, start + length - 1
     out["n_points"] = rows["n_points"]
@@ -146,7 +170,7 @@ def _window_tracks(peaks, camera, start, length, k, shape, sigma, max_speed, fal
     idx[pad] = np.concatenate(members)
     score = np.where(pad, p["score"][idx], np.nan)
     out["score"] = np.nanmedian(score, axis=1)
-    dt = f[idx] - t0[:, None]
+    dt = u[idx] - t0[:, None]
     ex = sx[idx] - (rows["x0"][:, None] + rows["vx"][:, None] * dt)
     ey = sy[idx] - (rows["y0"][:, None] + rows["vy"][:, None] * dt)
     e = np.where(pad, np.hypot(ex, ey) / sigma, np.inf)
@@ -154,9 +178,10 @@ def _window_tracks(peaks, camera, start, length, k, shape, sigma, max_speed, fal
     # moving against the scene and in the image: structure fixed in either (the scene's,
     # or the sensor's pattern under a moving camera) is not this path's
     least = GATE * math.sqrt(2.0) * sigma
-    out["moving"] = np.hypot(out["svx"], out["svy"]) * span >= least
-    in_image = np.hypot(out["vx"], out["vy"]) * span >= least
-    out["expectation"] = _expectation(e, rows, sx, sy, idx, pad, shape, length, sigma,
+    out["moving"] = np.hypot(rows["vx"], rows["vy"]) * span >= least
+    in_image = np.hypot(rows["vx"] + cam_v[0], rows["vy"] + cam_v[1]) * span >= least
+    scans = int(window[-1] - window[0]) + 1
+    out["expectation"] = _expectation(e, rows, sx, sy, idx, pad, shape, scans, sigma,
                                       max_speed, floor)
     out["kept"] = out["moving"] & in_image & (out["expectation"] <= false_tracks * length)
     return out

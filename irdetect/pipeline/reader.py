@@ -110,16 +110,16 @@ class Reader:
         ``REPEATED`` of them or more do (None otherwise, and when every one does: a still
         image, which ``flat_frames`` reports). The recordings hold a lone repeat now and then
         (4 of the 17 real folders one each), which costs nothing; a frame-rate conversion
-        repeats every 5th or 6th frame."""
+        repeats every 5th or 6th frame (``irdetect.repeats``)."""
         n = len(self.repeats)
         if n < max(2, self.REPEATED * self.measured) or n >= self.measured - 1:
             return None
         listed = ", ".join(map(str, self.repeats[:shown]))
         more = f" and {n - shown} more" if n > shown else ""
         return (f"{n} frames ({listed}{more}) repeat the frame before them exactly (a "
-                "frame-rate conversion, or a codec that copied them): a target seems to stop "
-                "there and then to jump, which costs detections and tracks; the sensor's own "
-                "frames are better (docs/real.md)")
+                "frame-rate conversion, or a codec that copied them): no new observations, "
+                "where a target seems to stop and then to jump; the sensor's own frames are "
+                "better (docs/real.md, \"Repeated frames\")")
 
     def gain_steps(self) -> str | None:
         """One line on the gain steps taken so far (``SensorGain.summary``), or None."""

@@ -14,6 +14,7 @@ from irdetect.binning import Binned, binned_mask, check_bin, to_input
 from irdetect.exclude import excluded, exclusion_mask
 from irdetect.io.sources import FrameSource, check_values
 from irdetect.peaks import STANDARDISE_ERROR, cfar_level, frame_level
+from irdetect.repeats import FrameGroups, NewFrames, frame_groups
 from irdetect.suppress import bright_up, is_dark
 from irdetect.track.confirm import ClutterTest
 from irdetect.track.detector import detector_blocks, guided_regions, peak_regions
@@ -223,6 +224,16 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     # tables given out are in the input's pixels
     factor = check_bin((suppression or {}).get("bin", 1))
     excluded_px = binned_mask(exclusion_mask(exclude, (h, w)), factor)
+    # a frame-rate conversion's repeated frames are no observations: the tracker runs on
+    # the new frames, and each repeat takes the points of the frame it repeats
+    groups = frame_groups(frames)
+    if groups.n_new < n:
+        if groups.n_new > 1:        # a still image is ``flat_frames``' to report
+            log.info("%d of %d frames repeat the frame before them exactly (a frame-rate "
+                     "conversion): tracked on the %d new frames (docs/tracking.md)",
+                     n - groups.n_new, n, groups.n_new)
+        frames = NewFrames(frames, groups)
+        n = groups.n_new
     if factor > 1:
         frames = Binned(frames, factor)
         n, h, w = frames.shape
@@ -296,7 +307,7 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
     give = sink if sink is not None else chunks.append
 
     def emit(rows):
-        give(to_input("track_points", rows, factor))
+        give(to_input("track_points", groups.expand(rows), factor))
     offsets = np.zeros((n, 2))
     n_regions = 0
 
@@ -317,10 +328,10 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
             if off is not None:
                 offsets[start:start + len(block)] = off
                 if camera_sink is not None:
-                    camera_sink(to_input("camera", tables.from_columns(
+                    camera_sink(to_input("camera", groups.expand(tables.from_columns(
                         tables.CAMERA, frame=np.arange(start, start + len(block)),
                         dx=off[:, 0], dy=off[:, 1], gain=gains[:, 0], level=gains[:, 1]),
-                        factor))
+                        velocity=()), factor))
             out = []
             for j, frame in enumerate(block):
                 seeds = None
@@ -357,10 +368,25 @@ def track(frames, sink: Callable[[np.ndarray], None] | None = None, progress: bo
             if len(pts):
                 emit(pts)
             bar.update(len(block))
-    summary = to_input("tracks", tracker.finish(), factor)
+    summary = to_input("tracks", _input_frames(tracker.finish(), groups), factor)
     log.debug("tracked %d frames: %d regions, %d confirmed tracks", n, n_regions, len(summary))
     points = np.concatenate(chunks) if chunks else tables.empty(tables.TRACK_POINT)
     return points, summary
+
+
+def _input_frames(summary: np.ndarray, groups: FrameGroups) -> np.ndarray:
+    """TRACK rows whose frames count new frames (``irdetect.repeats``) in input frames:
+    ``frame_start`` the first showing its first point, ``frame_end`` the last showing its
+    last, ``n_points`` the input frames between, velocities per input frame."""
+    if not len(summary) or groups.n_new == groups.n_input:
+        return summary
+    out = summary.copy()
+    out["frame_start"] = groups.first(summary["frame_start"])
+    out["frame_end"] = groups.last(summary["frame_end"])
+    out["n_points"] = out["frame_end"] - out["frame_start"] + 1
+    out["vx"] *= groups.scale
+    out["vy"] *= groups.scale
+    return out
 
 
 def _gated(regs: np.ndarray, kw: dict, min_shape: float) -> np.ndarray:
