@@ -130,6 +130,40 @@ def test_the_per_frame_path_alone_tracks_a_fast_target_and_not_the_noise():
     assert np.allclose(kept["vx"], 6.0, atol=0.2)
 
 
+def test_repeated_frames_are_no_scans_of_the_per_frame_path():
+    # every 5th frame shown twice (a frame-rate conversion): the peaks of frames 0..35 of a
+    # target at 4 px/frame, with those of frames 4, 9, ... repeated (frame 5 shows frame 4)
+    rng = np.random.default_rng(6)
+    shape = (128, 256)
+    peaks = _blob_peaks(30, [(20.0, 30.0, 4.0, 1.0, 9.0)], shape, rng)
+    shown = np.repeat(np.arange(30), np.where(np.arange(30) % 5 == 4, 2, 1))[:36]
+    rows = [peaks[peaks["frame"] == f] for f in shown]
+    for t, r in enumerate(rows):
+        r["frame"] = t
+    peaks = np.concatenate(rows)
+    repeated = np.r_[False, shown[1:] == shown[:-1]]
+    camera = tables.from_columns(tables.CAMERA, frame=np.arange(36), dx=np.zeros(36),
+                                 dy=np.zeros(36), repeated=repeated)
+
+    def kept(camera):
+        ft = frame_tracks(peaks, camera, [0, 12, 24], 12, shape=shape, n_frames=36,
+                          level=frame_level(shape, 1.0))
+        return ft[ft["kept"]]
+
+    got = kept(camera)
+    assert sorted(got["combined_frame"]) == [0, 1, 2]
+    # velocities per input frame: 4 px per new frame, 10 new frames in 12 input frames
+    # (11 for the first window's 12: its 12th frame repeats its 11th)
+    assert np.allclose(got["vx"], 4.0 * 10 / 12, atol=0.2), got["vx"]
+    # at each window's middle frame, where the frame shown puts the target
+    want = 20.0 + 4.0 * np.interp([5.5, 17.5, 29.5], np.arange(36), shown)
+    assert np.abs(got["x"] - want).max() < 0.5, (got["x"], want)
+    # taken as scans, the stops pull the chains' lines off (1.7 px here) or break them
+    plain = kept(tables.from_columns(tables.CAMERA, frame=np.arange(36), dx=np.zeros(36),
+                                     dy=np.zeros(36)))
+    assert len(plain) < 3 or np.abs(plain["x"] - want).max() > 1.0
+
+
 def test_structure_that_stays_put_in_the_scene_is_not_a_per_frame_track():
     rng = np.random.default_rng(6)
     shape = (96, 96)

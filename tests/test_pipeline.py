@@ -424,8 +424,10 @@ def test_frames_repeated_by_a_frame_rate_conversion_are_named(caplog):
     for clip, want in ((converted, 8), (lone, 0), (still, 0)):
         caplog.clear()
         with caplog.at_level(logging.INFO, logger="irdetect"):
-            detect_sequence(clip)
+            out = detect_sequence(clip)
             track(clip)
+        if want:        # /camera marks them (the per-frame path's chains skip them)
+            assert np.flatnonzero(out["camera"]["repeated"]).tolist() == list(range(5, 48, 6))
         said = [(r.levelno, r.getMessage()) for r in caplog.records
                 if "repeat the frame" in r.getMessage()]
         assert len(said) == (2 if want else 0), said
