@@ -21,13 +21,19 @@ import numpy as np
 
 from irdetect.io.sources import FrameSource, check_values
 
-__all__ = ["FrameGroups", "NewFrames", "frame_groups"]
+__all__ = ["FrameGroups", "NewFrames", "frame_groups", "is_conversion"]
 
 #: frames read first to decide whether a sequence repeats frames at all
 PROBE = 64
-#: the share of the probe's frames that must repeat for the whole sequence to be searched
-#: (a frame-rate conversion repeats 1 in 5 or 6; a recording's lone repeat is left alone)
+#: the share of frames that repeat in a frame-rate conversion at least (it repeats 1 in 5
+#: or 6; a recording's lone repeat is a frame like any other)
 SHARE = 0.05
+
+
+def is_conversion(n_repeats: int, n_frames: int) -> bool:
+    """Whether ``n_repeats`` of ``n_frames`` frames repeating the frame before them are a
+    frame-rate conversion's: ``SHARE`` of them and at least 2."""
+    return n_repeats >= max(2.0, SHARE * n_frames)
 
 
 class FrameGroups:
@@ -97,12 +103,11 @@ class FrameGroups:
         return out
 
 
-def frame_groups(frames, *, probe: int = PROBE, share: float = SHARE,
-                 block: int = 64) -> FrameGroups:
+def frame_groups(frames, *, probe: int = PROBE, block: int = 64) -> FrameGroups:
     """The new frames of a sequence and the repeats after each.
 
-    The first ``probe`` frames are compared with the frame before each; only when
-    ``share`` of them or more repeat it exactly is the whole sequence read once for its
+    The first ``probe`` frames are compared with the frame before each; only when their
+    repeats are a conversion's (``is_conversion``) is the whole sequence read once for its
     repeats (a second reading of the input), otherwise every frame counts as new.
 
     Parameters
@@ -117,7 +122,7 @@ def frame_groups(frames, *, probe: int = PROBE, share: float = SHARE,
     n = int(frames.shape[0])
     head = np.asarray(frames[0:min(n, probe)])
     found = _repeats(head, None)
-    if len(found) < max(1, share * (len(head) - 1)):
+    if not is_conversion(len(found), len(head)):
         return FrameGroups(n)
     last = head[-1]
     for a in range(len(head), n, block):

@@ -29,9 +29,10 @@ scene. A window's track is kept when
    than the clouds it crosses was lost however straight its 12 hits
    (docs/detection.md, "The per-frame path").
 
-A frame that repeats the frame before it exactly (``/camera``'s ``repeated``: a frame-rate
-conversion, ``irdetect.repeats``) is no scan: the chains run on the new frames' clock, in
-which the target moves evenly, and their velocities are given back per input frame.
+When 5 % of the frames or more repeat the frame before them exactly (``/camera``'s
+``repeated``: a frame-rate conversion, ``irdetect.repeats``), the repeats are no scans: the
+chains run on the new frames' clock, in which the target moves evenly, and their
+velocities are given back per input frame.
 
 Coordinates: x = column, y = row, px; time in frames.
 """
@@ -47,6 +48,7 @@ from irdetect import tables
 from irdetect.initiate import camera_at, initiate_points
 from irdetect.initiate.clutter import LEVELS, chain_expectation, hypotheses
 from irdetect.operating import tail_threshold
+from irdetect.repeats import is_conversion
 
 #: the CV check's gate in sigmas (the scans default)
 GATE = 3.0
@@ -117,10 +119,15 @@ def frame_tracks(peaks: np.ndarray, camera: np.ndarray, starts, length: int, *,
 
 def new_frame_clock(camera: np.ndarray, n_frames: int) -> np.ndarray:
     """(T,) int: each frame's index among the new frames (a repeat has the index of the
-    frame it repeats; ``camera``'s ``repeated``, frames without a row counted new)."""
+    frame it repeats; ``camera``'s ``repeated``, frames without a row counted new) when
+    they are a frame-rate conversion's (``irdetect.repeats.is_conversion``);
+    0 .. T-1 otherwise (a recording's lone repeat is a frame like any other, as in
+    ``irdetect track``)."""
     repeated = np.zeros(n_frames, bool)
     inside = camera["frame"] < n_frames
     repeated[camera["frame"][inside]] = camera["repeated"][inside]
+    if not is_conversion(int(repeated.sum()), n_frames):
+        return np.arange(n_frames)
     return np.cumsum(~repeated) - 1
 
 

@@ -10,6 +10,7 @@ import numpy as np
 from irdetect.camera import CameraMotion
 from irdetect.gain import STEP, SensorGain, normalise
 from irdetect.io.sources import FrameSource, check_values
+from irdetect.repeats import is_conversion
 
 
 class Reader:
@@ -25,8 +26,6 @@ class Reader:
 
     #: largest read-ahead in bytes (a 64-frame chunk of 640x512 uint16 frames is 42 MB)
     MAX_BLOCK_BYTES = 48 << 20
-    #: the share of frames repeating the frame before them that ``repeated`` reports
-    REPEATED = 0.05
 
     def __init__(self, frames, history: int, length: int, ahead: int = 0,
                  camera: bool = True, gain_step: float = STEP):
@@ -107,12 +106,12 @@ class Reader:
 
     def repeated(self, shown: int = 5) -> str | None:
         """One line on the frames read that repeat the frame before them exactly, when
-        ``REPEATED`` of them or more do (None otherwise, and when every one does: a still
-        image, which ``flat_frames`` reports). The recordings hold a lone repeat now and then
-        (4 of the 17 real folders one each), which costs nothing; a frame-rate conversion
-        repeats every 5th or 6th frame (``irdetect.repeats``)."""
+        they are a frame-rate conversion's (``irdetect.repeats.is_conversion``); None
+        otherwise, and when every one does (a still image, which ``flat_frames`` reports).
+        The recordings hold a lone repeat now and then (4 of the 17 real folders one each),
+        which is a frame like any other."""
         n = len(self.repeats)
-        if n < max(2, self.REPEATED * self.measured) or n >= self.measured - 1:
+        if not is_conversion(n, self.measured) or n >= self.measured - 1:
             return None
         listed = ", ".join(map(str, self.repeats[:shown]))
         more = f" and {n - shown} more" if n > shown else ""
