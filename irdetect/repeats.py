@@ -4,10 +4,13 @@ A video converted from one frame rate to another (a 25 frames/s sensor shown at 
 every 5th or 6th frame twice. The repeat is no new observation: a target in it has not
 moved, and a stage that takes the frames to be equally spaced in time sees the target stop
 for a frame and then go on, its velocity broken at every repeat. The new frames are the
-equally spaced ones. ``irdetect track`` therefore runs on the new frames alone
-(:class:`NewFrames`) and gives each repeat the points of the frame it repeats
-(:meth:`FrameGroups.expand`); a velocity per new frame is one per input frame times the
-share of input frames that are new (``FrameGroups.scale``).
+equally spaced ones. When the repeats are a conversion's (:func:`is_conversion`; a
+recording's lone repeat is a frame like any other), ``irdetect track`` therefore runs on the
+new frames alone (:class:`NewFrames`) and gives each repeat the points of the frame it
+repeats (:meth:`FrameGroups.expand`), and ``irdetect process``'s per-frame path runs its
+chains on the new frames' clock (``irdetect.pipeline.perframe.new_frame_clock``); a
+velocity per new frame is one per input frame times the share of input frames that are
+new (``FrameGroups.scale``).
 
 Only exact repeats count (every pixel equal): the istd640 clips of ../shared/data/real
 repeat their background every 6th frame nearly exactly (a mean absolute difference of

@@ -1164,7 +1164,9 @@ def write_report(path: Path, rows, have_trackpy: bool, total: float, variants=()
             "Each sequence as another recording of it would give it (`transformed`): "
             "mirrored left to right; reversed in time (targets and camera move the other "
             "way); every second frame (a sensor at half the frame rate: twice the speeds "
-            "in px/frame, half the windows); half the size by area averaging (a sensor of "
+            "in px/frame, half the windows); every fifth frame shown twice (a frame-rate "
+            "conversion, 25 frames/s shown at 30, the truth repeated with them); half the "
+            "size by area averaging (a sensor of "
             "half the resolution: the targets smaller and dimmer against their pixel; gate "
             "halved, not below 3 px). None of irdetect's settings was chosen on these "
             "clips. Goal as in section 1.",
