@@ -23,7 +23,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from irdetect.io.sources import FrameSource, check_values
+from irdetect.io.sources import FrameView
 from irdetect.verify import quantisation_floor
 
 #: per table (``irdetect.tables.BY_NAME``): its (x, y) position columns, ...
@@ -54,7 +54,7 @@ def check_bin(factor) -> int:
     return int(factor)
 
 
-class Binned:
+class Binned(FrameView):
     """A sequence seen through ``factor`` x ``factor`` pixel blocks: each frame the mean of
     its blocks, float32, (H // factor, W // factor).
 
@@ -73,26 +73,13 @@ class Binned:
     ((2, 2, 3), [3.5, 5.5, 7.5])
     """
 
-    dtype = np.dtype(np.float32)
-
     def __init__(self, frames, factor: int):
-        self.frames, self.factor = frames, check_bin(factor)
+        self.factor = check_bin(factor)
         n, h, w = (int(v) for v in frames.shape)
-        self.shape = (n, h // self.factor, w // self.factor)
-        self.block_frames = int(getattr(frames, "block_frames", 1))
-        self.path = getattr(frames, "path", None)
+        super().__init__(frames, (n, h // self.factor, w // self.factor), np.float32)
 
-    def __len__(self) -> int:
-        return self.shape[0]
-
-    def __getitem__(self, index) -> np.ndarray:
-        if isinstance(index, (int, np.integer)):
-            i = int(index) + (len(self) if index < 0 else 0)
-            return self[i:i + 1][0]
-        start = index.indices(len(self))[0]
-        raw = np.asarray(self.frames[index])
-        if isinstance(self.frames, FrameSource):    # a file's frames must be finite
-            check_values(raw, start, self.path)
+    def _read(self, start: int, stop: int) -> np.ndarray:
+        raw = self._raw(start, stop)
         _, h, w = self.shape
         f = self.factor
         out = np.empty((len(raw), h, w), np.float32)

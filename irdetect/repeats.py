@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from irdetect.io.sources import FrameSource, check_values
+from irdetect.io.sources import FrameView
 
 __all__ = ["FrameGroups", "NewFrames", "frame_groups", "is_conversion"]
 
@@ -143,7 +143,7 @@ def _repeats(raw: np.ndarray, before: np.ndarray | None) -> np.ndarray:
     return np.flatnonzero(np.r_[first, same]) if len(raw) else np.zeros(0, np.int64)
 
 
-class NewFrames:
+class NewFrames(FrameView):
     """A sequence seen without its repeated frames (:class:`FrameGroups`).
 
     Parameters
@@ -155,26 +155,13 @@ class NewFrames:
     """
 
     def __init__(self, frames, groups: FrameGroups):
-        self.frames, self.groups = frames, groups
-        self.shape = (groups.n_new,) + tuple(int(v) for v in frames.shape[1:])
-        self.dtype = np.dtype(frames.dtype)
-        self.block_frames = int(getattr(frames, "block_frames", 1))
-        self.path = getattr(frames, "path", None)
+        self.groups = groups
+        super().__init__(frames, (groups.n_new,) + tuple(int(v) for v in frames.shape[1:]),
+                         frames.dtype)
 
-    def __len__(self) -> int:
-        return self.shape[0]
-
-    def __getitem__(self, index) -> np.ndarray:
-        if isinstance(index, (int, np.integer)):
-            i = int(index) + (len(self) if index < 0 else 0)
-            return self[i:i + 1][0]
-        a, b, step = index.indices(len(self))
-        if step != 1:
-            raise ValueError("NewFrames takes slices of step 1")
-        if b <= a:
+    def _read(self, start: int, stop: int) -> np.ndarray:
+        if stop <= start:
             return np.zeros((0,) + self.shape[1:], self.dtype)
-        first = int(self.groups.first(a))
-        raw = np.asarray(self.frames[first:int(self.groups.first(b - 1)) + 1])
-        if isinstance(self.frames, FrameSource):    # a file's frames must be finite
-            check_values(raw, first, self.path)
-        return raw[self.groups.first(np.arange(a, b)) - first]
+        first = int(self.groups.first(start))
+        raw = self._raw(first, int(self.groups.first(stop - 1)) + 1)
+        return raw[self.groups.first(np.arange(start, stop)) - first]

@@ -119,6 +119,50 @@ class FrameSource:
         return f"{type(self).__name__}({self.path!r}, shape={self.shape}, dtype={self.dtype})"
 
 
+class FrameView:
+    """Frames computed from another sequence's on demand (``irdetect.binning.Binned``,
+    ``irdetect.repeats.NewFrames``): ``len()``, ``.shape``, ``.dtype``, ``.path``,
+    ``.block_frames`` and slicing ``[a:b]`` (step 1) or ``[i]``, as a FrameSource reads.
+
+    Parameters
+    ----------
+    frames : ndarray of shape (T, H, W) or FrameSource
+        Anything with ``len()``, ``.shape`` and slicing ``frames[a:b]`` -> (b - a, H, W).
+    shape : tuple of int
+        The view's (T', H', W').
+    dtype : numpy.dtype
+        The view's pixel type.
+    """
+
+    def __init__(self, frames, shape, dtype):
+        self.frames, self.shape, self.dtype = frames, tuple(shape), np.dtype(dtype)
+        self.block_frames = int(getattr(frames, "block_frames", 1))
+        self.path = getattr(frames, "path", None)
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, index) -> np.ndarray:
+        if isinstance(index, (int, np.integer)):
+            i = int(index) + (len(self) if index < 0 else 0)
+            return self[i:i + 1][0]
+        a, b, step = index.indices(len(self))
+        if step != 1:
+            raise ValueError(f"{type(self).__name__} takes slices of step 1")
+        return self._read(a, max(a, b))
+
+    def _read(self, start: int, stop: int) -> np.ndarray:
+        """The view's frames [start, stop) (start <= stop)."""
+        raise NotImplementedError
+
+    def _raw(self, start: int, stop: int) -> np.ndarray:
+        """The underlying frames [start, stop); a file's checked finite (docs/format.md)."""
+        raw = np.asarray(self.frames[start:stop])
+        if isinstance(self.frames, FrameSource):
+            check_values(raw, start, self.path)
+        return raw
+
+
 #: the largest magnitude the stages compute with (they work in float32)
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 
