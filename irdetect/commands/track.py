@@ -75,7 +75,8 @@ def run(args) -> int:
     check_output_path(output, args.force, inputs=(args.input,))
     params = {k: getattr(config.track, k) for k in config.track.__dataclass_fields__}
     with refused_settings(args.config):     # the tracker's own checks, on flat frames
-        flat = np.arange(3, dtype=np.float32)[:, None, None] + np.zeros((3, 32, 32), np.float32)
+        # (of three levels: equal ones would be a frame-rate conversion's repeats)
+        flat = np.arange(3, dtype=np.float32)[:, None, None] * np.ones((32, 32), np.float32)
         track(flat, lambda rows: None, False,
               dataclasses.asdict(config.suppress), **params)
     with open_sequence(args.input, dataset=args.dataset) as source:
