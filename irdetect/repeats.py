@@ -24,7 +24,7 @@ import numpy as np
 
 from irdetect.io.sources import FrameView
 
-__all__ = ["FrameGroups", "NewFrames", "frame_groups", "is_conversion"]
+__all__ = ["FrameGroups", "NewFrames", "frame_groups", "is_conversion", "repeated_frames"]
 
 #: frames read first to decide whether a sequence repeats frames at all
 PROBE = 64
@@ -124,23 +124,27 @@ def frame_groups(frames, *, probe: int = PROBE, block: int = 64) -> FrameGroups:
     """
     n = int(frames.shape[0])
     head = np.asarray(frames[0:min(n, probe)])
-    found = _repeats(head, None)
+    found = repeated_frames(head)
     if not is_conversion(len(found), len(head)):
         return FrameGroups(n)
     last = head[-1]
     for a in range(len(head), n, block):
         raw = np.asarray(frames[a:a + block])
-        found = np.r_[found, a + _repeats(raw, last)]
+        found = np.r_[found, a + repeated_frames(raw, last)]
         last = raw[-1]
     return FrameGroups(n, found)
 
 
-def _repeats(raw: np.ndarray, before: np.ndarray | None) -> np.ndarray:
-    """Indices into ``raw`` (n, H, W) of its frames equal to the frame before them
-    (``before`` for the first; None: the first is not compared)."""
-    same = (raw[1:] == raw[:-1]).all(axis=(1, 2))
-    first = before is not None and len(raw) and bool((raw[0] == before).all())
-    return np.flatnonzero(np.r_[first, same]) if len(raw) else np.zeros(0, np.int64)
+def repeated_frames(raw: np.ndarray, before: np.ndarray | None = None) -> np.ndarray:
+    """Indices into ``raw`` (n, H, W) of its frames equal to the frame before them, bit for
+    bit (``before``, (H, W), is the one before the first; None: the first is not
+    compared). One frame compared at a time: no temporary of the block's size."""
+    prev, found = before, []
+    for i, frame in enumerate(raw):             # a loop over frames
+        if prev is not None and np.array_equal(frame, prev):
+            found.append(i)
+        prev = frame
+    return np.asarray(found, np.int64)
 
 
 class NewFrames(FrameView):

@@ -10,7 +10,7 @@ import numpy as np
 from irdetect.camera import CameraMotion
 from irdetect.gain import STEP, SensorGain, normalise
 from irdetect.io.sources import FrameSource, check_values
-from irdetect.repeats import is_conversion
+from irdetect.repeats import is_conversion, repeated_frames
 
 
 class Reader:
@@ -96,12 +96,10 @@ class Reader:
             if self.agc is not None:
                 self.gains[first:stop] = self.agc.update(out[first - start:],
                                                          self.offsets[first:stop])
+            new = out[first - start:]
             prev = self._last if first == self.measured else None
-            for t, frame in enumerate(out[first - start:], first):   # a loop over frames
-                if prev is not None and np.array_equal(frame, prev):
-                    self.repeats.append(t)
-                prev = frame
-            self._last = prev.copy()
+            self.repeats.extend((first + repeated_frames(new, prev)).tolist())
+            self._last = new[-1].copy()
             self.measured = stop
 
     def repeated(self, shown: int = 5) -> str | None:
