@@ -35,6 +35,50 @@ def test_every_reader_round_trips_the_same_frames(tmp_path, dtype):
             np.testing.assert_array_equal(got, frames)
 
 
+@pytest.mark.parametrize("stored, read", [("i1", "f8"), ("u4", "f8"), ("i8", "f8"),
+                                          ("u8", "f8"), ("f2", "f4")])
+def test_other_pixel_types_are_read_widened_and_detect_alike(tmp_path, stored, read):
+    # numpy's default integers (int64), 32-bit counts, int8 and float16: read as the type
+    # the stages take, every value kept, and the same detections as the frames as uint8
+    from irdetect.commands.info import describe
+    from irdetect.config import ProcessConfig
+    from irdetect.pipeline import detect_sequence
+    from irdetect.simulate import simulate
+
+    frames, _ = simulate("wan2008", snr=6, rng=3, n_frames=36, height=64, width=64)
+    assert frames.dtype == np.uint8
+    shifted = frames.astype(np.int16) - (128 if stored == "i1" else 0)
+    data = shifted.astype(stored)
+    with h5py.File(tmp_path / "a.h5", "w") as f:
+        f["frames"] = data
+    np.save(tmp_path / "a.npy", data)
+    want = detect_sequence(frames, ProcessConfig())["detections"]
+    for path in ["a.h5", "a.npy"]:
+        with open_sequence(tmp_path / path) as src:
+            assert src.dtype == np.dtype(read), path
+            got = src[:]
+            assert got.dtype == np.dtype(read)
+            np.testing.assert_array_equal(got, shifted.astype(read))
+            np.testing.assert_array_equal(src[7], shifted[7].astype(read))
+            out = np.empty(got.shape, src.dtype)
+            src.read_into(0, len(src), out)
+            np.testing.assert_array_equal(out, got)
+            det = detect_sequence(src, ProcessConfig())["detections"]
+        assert len(want) and len(det) == len(want), path
+        np.testing.assert_allclose(det["x"], want["x"], atol=1e-6, err_msg=path)
+        np.testing.assert_allclose(det["y"], want["y"], atol=1e-6, err_msg=path)
+        # `irdetect info` names both types
+        assert f"{np.dtype(stored)} (read as {np.dtype(read)})" in describe(tmp_path / path)[1]
+
+
+@pytest.mark.parametrize("dtype", [bool, np.complex64])
+def test_pixels_that_are_no_numbers_are_refused(tmp_path, dtype):
+    write = tmp_path / "a.npy"
+    np.save(write, np.ones((12, 16, 16), dtype))
+    with pytest.raises(InputError, match=f"unsupported pixel type {np.dtype(dtype)}"):
+        open_sequence(write)
+
+
 def test_video_reader_round_trips_lossless_frames(tmp_path):
     rng = np.random.default_rng(1)
     frames = rng.integers(0, 255, size=(9, 32, 48), dtype=np.uint8)

@@ -45,7 +45,8 @@ def describe(path, dataset=None) -> list[str]:
         t, h, w = src.shape
         first = src[0]
         lines = [f"{path}: image sequence ({type(src).__name__[:-6]})",
-                 f"  {t} frames of {w}x{h} px (W x H), {src.dtype}",
+                 f"  {t} frames of {w}x{h} px (W x H), {src.stored_dtype}"
+                 + (f" (read as {src.dtype})" if src.dtype != src.stored_dtype else ""),
                  f"  frame 0 values {first.min()}..{first.max()}"]
         if src.frame_rate:
             lines.append(f"  frame rate {src.frame_rate:g} Hz")

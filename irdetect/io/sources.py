@@ -51,7 +51,10 @@ class FrameSource:
     shape : tuple of int
         (T, H, W).
     dtype : numpy.dtype
-        The stored pixel type.
+        The pixel type of the frames as read: the stored one, widened where the stages do
+        not take it (``working_dtype``: other integers to float64, float16 to float32).
+    stored_dtype : numpy.dtype
+        The pixel type in the file.
     frame_rate : float or None
         Frames per second, when the file says.
     codec : str or None
@@ -64,6 +67,7 @@ class FrameSource:
     path: str
     shape: tuple[int, int, int]
     dtype: np.dtype
+    stored_dtype: np.dtype
     frame_rate: float | None = None
     codec: str | None = None
     truth: np.ndarray | None = None
@@ -76,13 +80,36 @@ class FrameSource:
             i = int(index) + (len(self) if index < 0 else 0)
             if not 0 <= i < len(self):
                 raise IndexError(f"frame {index} out of range for {len(self)} frames")
-            return self._read(i, i + 1)[0]
+            return self._typed(i, i + 1)[0]
         if isinstance(index, slice):
             start, stop, step = index.indices(len(self))
             if step != 1:
-                return self._read(start, stop)[::step]
-            return self._read(start, max(start, stop))
+                return self._typed(start, stop)[::step]
+            return self._typed(start, max(start, stop))
         raise TypeError("index a FrameSource with an int or a slice")
+
+    def _set_dtype(self, shape, stored) -> None:
+        """Refuse a stack of the wrong shape or pixel type (``InputError``); set ``dtype``
+        (``working_dtype``) and ``stored_dtype``."""
+        path = self.path
+        if len(shape) != 3:
+            raise InputError(f"frames must be 3-D (T, H, W), got {len(shape)}-D shape {shape}",
+                             path)
+        if shape[0] == 0:
+            raise InputError("the sequence has 0 frames", path)
+        if shape[1] < 1 or shape[2] < 1:
+            raise InputError(f"frames of size {shape[1]}x{shape[2]} are empty", path)
+        self.dtype = working_dtype(stored)
+        if self.dtype is None:
+            raise InputError(f"unsupported pixel type {np.dtype(stored)} (irdetect reads "
+                             "integer and floating-point pixels)", path)
+        self.stored_dtype = np.dtype(stored)
+
+    def _typed(self, start: int, stop: int) -> np.ndarray:
+        """Frames [start, stop) in the source's ``dtype`` (the stored type widened where
+        the stages do not take it: ``working_dtype``)."""
+        frames = self._read(start, stop)
+        return frames if frames.dtype == self.dtype else frames.astype(self.dtype)
 
     def _read(self, start: int, stop: int) -> np.ndarray:
         raise NotImplementedError
@@ -236,16 +263,18 @@ def _nonfinite_message(bad: np.ndarray, start: int) -> str:
             f"({where}; irdetect needs finite pixel values)")
 
 
-def _check_stack(path, shape, dtype) -> None:
-    if len(shape) != 3:
-        raise InputError(f"frames must be 3-D (T, H, W), got {len(shape)}-D shape {shape}", path)
-    if shape[0] == 0:
-        raise InputError("the sequence has 0 frames", path)
-    if shape[1] < 1 or shape[2] < 1:
-        raise InputError(f"frames of size {shape[1]}x{shape[2]} are empty", path)
-    if np.dtype(dtype) not in [np.dtype(d) for d in SUPPORTED_DTYPES]:
-        raise InputError(f"unsupported pixel type {np.dtype(dtype)} "
-                         "(use uint8, uint16, int16, int32, float32 or float64)", path)
+def working_dtype(dtype) -> np.dtype | None:
+    """The pixel type frames of ``dtype`` are read as: the stored one when the stages take
+    it (``SUPPORTED_DTYPES``), float64 for other integers (int8, uint32, int64, uint64:
+    exact up to 2**53), float32 for float16; None for others (bool, complex, text)."""
+    dtype = np.dtype(dtype)
+    if dtype in [np.dtype(d) for d in SUPPORTED_DTYPES]:
+        return dtype
+    if dtype.kind in "iu":
+        return np.dtype(np.float64)
+    if dtype.kind == "f" and dtype.itemsize < 4:
+        return np.dtype(np.float32)
+    return None
 
 
 class HDF5Source(FrameSource):
@@ -265,9 +294,8 @@ class HDF5Source(FrameSource):
             raise InputError(f"not a readable HDF5 file ({_short(exc)})", path) from None
         try:
             self._dset = self._find_dataset(dataset)
-            _check_stack(self.path, self._dset.shape, self._dset.dtype)
+            self._set_dtype(self._dset.shape, self._dset.dtype)
             self.shape = tuple(int(n) for n in self._dset.shape)
-            self.dtype = np.dtype(self._dset.dtype)
             self.frame_rate = _frame_rate(self._file.attrs.get("frame_rate"), self.path)
             self.truth = _read_truth(self._file, self.path)
             self.block_frames = self._block_frames()
@@ -391,9 +419,8 @@ class MatSource(FrameSource):
             raise InputError(f"variable {name!r} is {frames.ndim}-D; expected H x W x T",
                              path)
         self._array = np.moveaxis(frames, 2, 0)                      # (T, H, W)
-        _check_stack(self.path, self._array.shape, self._array.dtype)
+        self._set_dtype(self._array.shape, self._array.dtype)
         self.shape = tuple(int(n) for n in self._array.shape)
-        self.dtype = self._array.dtype
 
     def _read(self, start, stop):
         return np.ascontiguousarray(self._array[start:stop])
@@ -505,7 +532,7 @@ class ImageFolderSource(FrameSource):
         if not self._files:
             raise InputError("the folder holds no images (PNG, TIFF, BMP, JPEG, PGM)", path)
         first = self._load(self._files[0])
-        _check_stack(self.path, (len(self._files),) + first.shape, first.dtype)
+        self._set_dtype((len(self._files),) + first.shape, first.dtype)
         gaps = numbering_gaps(self._files)
         if gaps:
             # the images are taken as consecutive frames: a missing one doubles a
@@ -516,7 +543,6 @@ class ImageFolderSource(FrameSource):
                         + (", ..." if len(gaps) > 3 else ""),
                         len(gaps), "" if len(gaps) == 1 else "s")
         self.shape = (len(self._files),) + first.shape
-        self.dtype = first.dtype
 
     def _load(self, file: Path) -> np.ndarray:
         image = cv2.imread(str(file), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
@@ -531,10 +557,11 @@ class ImageFolderSource(FrameSource):
         out = np.empty((stop - start,) + self.shape[1:], dtype=self.dtype)
         for i, file in enumerate(self._files[start:stop]):
             image = self._load(file)
-            if image.shape != self.shape[1:] or image.dtype != self.dtype:
+            if image.shape != self.shape[1:] or image.dtype != self.stored_dtype:
                 raise InputError(f"frames of mixed sizes or types: {file.name} is "
                                  f"{image.shape[1]}x{image.shape[0]} {image.dtype}, the first is "
-                                 f"{self.shape[2]}x{self.shape[1]} {self.dtype}", self.path)
+                                 f"{self.shape[2]}x{self.shape[1]} {self.stored_dtype}",
+                                 self.path)
             out[i] = image
         return out
 
@@ -570,7 +597,7 @@ class VideoSource(FrameSource):
             count = self._count_frames()
         first = _grey(first)
         self.shape = (count,) + first.shape
-        self.dtype = first.dtype
+        self.dtype = self.stored_dtype = first.dtype
         probe = cv2.VideoCapture(self.path)
         rate = probe.get(cv2.CAP_PROP_FPS)
         tag = int(probe.get(cv2.CAP_PROP_FOURCC))
@@ -626,9 +653,8 @@ class NpySource(FrameSource):
         except (ValueError, OSError, EOFError) as exc:
             raise InputError(f"not a readable .npy file ({_short(exc) or 'empty'})", path) \
                 from None
-        _check_stack(self.path, self._array.shape, self._array.dtype)
+        self._set_dtype(self._array.shape, self._array.dtype)
         self.shape = tuple(int(n) for n in self._array.shape)
-        self.dtype = self._array.dtype
 
     def _read(self, start, stop):
         return np.array(self._array[start:stop])
@@ -703,8 +729,7 @@ class TiffSource(FrameSource):
         if len(series.pages) != self.shape[0]:
             raise InputError(f"corrupt or truncated TIFF file ({len(series.pages)} pages "
                              f"readable of {self.shape[0]})", self.path)
-        self.dtype = np.dtype(series.dtype)
-        _check_stack(self.path, self.shape, self.dtype)
+        self._set_dtype(self.shape, series.dtype)
         self._series = series
         self._opencv = self._needs_opencv(tifffile_codecs())
         interval = (self._file.imagej_metadata or {}).get("finterval")
@@ -735,7 +760,7 @@ class TiffSource(FrameSource):
                                        flags=cv2.IMREAD_UNCHANGED)
         mats = list(mats) if ok else []
         if len(mats) != stop - start or any(
-                m.shape != self.shape[1:] or m.dtype != self.dtype for m in mats):
+                m.shape != self.shape[1:] or m.dtype != self.stored_dtype for m in mats):
             raise InputError(f"corrupt or truncated TIFF file (pages {start}..{stop - 1} "
                              "cannot be decoded)", self.path)
         return np.stack(mats)
