@@ -160,8 +160,8 @@ class OperatingConfig:
     """The combined-frame path's operating point (beyond the papers; docs/detection.md,
     "Operating point"): a verified detection is kept when its significance on its
     window's integrated map reaches the level the map's own clutter reaches
-    ``false_rate`` times per frame (``irdetect.operating.map_threshold``). ``false_rate
-    = 0`` keeps every verified chain (the paper's design)."""
+    ``false_rate`` times per frame of the window (``irdetect.operating.map_threshold``).
+    ``false_rate = 0`` keeps every verified chain (the paper's design)."""
 
     false_rate: float = 0.1
 

@@ -33,6 +33,25 @@ def test_map_level_on_noise_only_windows_holds_the_stated_rate():
     assert 0.25 * 1.2 <= np.mean(counts) <= 1.2
 
 
+def test_a_windows_level_allows_the_rate_over_its_own_frames(monkeypatch):
+    # a window's detections are judged on its map of the 36 frames its chains span, and a
+    # structure that persists is a false detection in each of the 3 windows whose maps
+    # hold it: a map's level allows rate x 12 maxima (the window's frames), not rate x 36
+    from irdetect.pipeline import combined, detect_sequence
+    from irdetect.simulate import simulate
+
+    frames, _ = simulate("wan2008", snr=4.0, rng=1)
+    lengths = []
+
+    def recorded(z, rate, length):
+        lengths.append(length)
+        return map_threshold(z, rate, length)
+
+    monkeypatch.setattr(combined, "map_threshold", recorded)
+    out = detect_sequence(frames)
+    assert len(out["detections"]) >= 4 and lengths and set(lengths) == {12}
+
+
 def test_integrated_map_measures_persistent_clutter_not_white_noise_scaling():
     # the same residue in all 12 frames (clutter that persists) keeps one frame's scale;
     # independent frames give sigma / sqrt(12)

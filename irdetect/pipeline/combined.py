@@ -395,11 +395,15 @@ class Pending:
         mid = self.start + (len(self.matched) - 1) / 2.0
         along = track_mean(det, [(p.start, p.matched) for p in blocks], mid)
         det["significance"] = significance(integrated, along, det["x"], det["y"])
+        # the rate is per frame of this window: the window's detections are judged on its
+        # own map, and a structure that persists is a false detection in every window whose
+        # map holds it, so a map allows the maxima of its window's frames, not of the
+        # OPERATING_WINDOWS x as many it integrates
+        n = len(self.matched)
         if self.false_rate > 0:
-            det["level"] = map_threshold(self._scene_only(integrated[0]), self.false_rate,
-                                         frames)
+            det["level"] = map_threshold(self._scene_only(integrated[0]), self.false_rate, n)
         if scene is not None and scene.any():       # band 2 ran: the camera moved
-            n = len(self.matched)                   # the map in the image of the middle
+            # the map in the image of the middle
             ref = 0.5 * (self.camera[(n - 1) // 2] + self.camera[n // 2])
             moved = integrated_map(registered_mean([(p.matched, p.camera[:len(p.matched)])
                                                     for p in blocks], ref))
@@ -407,7 +411,7 @@ class Pending:
                                                       det["y"][scene])
             if self.false_rate > 0:
                 det["level"][scene] = np.fmax(det["level"][scene], map_threshold(
-                    self._scene_only(moved[0]), self.false_rate, frames))
+                    self._scene_only(moved[0]), self.false_rate, n))
         return blocks
 
     def _scene_only(self, z: np.ndarray) -> np.ndarray:
