@@ -392,18 +392,18 @@ class Pending:
                     blocks.append(p)
         frames = sum(len(p.matched) for p in blocks)
         integrated = integrated_map(sum(p.dilated_sum() for p in blocks) / frames)
-        mid = self.start + (len(self.matched) - 1) / 2.0
-        along = track_mean(det, [(p.start, p.matched) for p in blocks], mid)
+        n = len(self.matched)
+        along = track_mean(det, [(p.start, p.matched) for p in blocks],
+                           self.start + (n - 1) / 2.0)
         det["significance"] = significance(integrated, along, det["x"], det["y"])
         # the rate is per frame of this window: the window's detections are judged on its
         # own map, and a structure that persists is a false detection in every window whose
-        # map holds it, so a map allows the maxima of its window's frames, not of the
+        # map holds it, so a map allows the maxima of its window's n frames, not of the
         # OPERATING_WINDOWS x as many it integrates
-        n = len(self.matched)
         if self.false_rate > 0:
             det["level"] = map_threshold(self._scene_only(integrated[0]), self.false_rate, n)
         if scene is not None and scene.any():       # band 2 ran: the camera moved
-            # the map in the image of the middle
+            # the map moved to the image of the window's middle frame
             ref = 0.5 * (self.camera[(n - 1) // 2] + self.camera[n // 2])
             moved = integrated_map(registered_mean([(p.matched, p.camera[:len(p.matched)])
                                                     for p in blocks], ref))
