@@ -99,11 +99,11 @@ class FrameSource:
             raise InputError("the sequence has 0 frames", path)
         if shape[1] < 1 or shape[2] < 1:
             raise InputError(f"frames of size {shape[1]}x{shape[2]} are empty", path)
-        self.dtype = working_dtype(stored)
-        if self.dtype is None:
+        working = working_dtype(stored)
+        if working is None:
             raise InputError(f"unsupported pixel type {np.dtype(stored)} (irdetect reads "
                              "integer and floating-point pixels)", path)
-        self.stored_dtype = np.dtype(stored)
+        self.dtype, self.stored_dtype = working, np.dtype(stored)
 
     def _typed(self, start: int, stop: int) -> np.ndarray:
         """Frames [start, stop) in the source's ``dtype`` (the stored type widened where
